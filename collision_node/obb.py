@@ -1,0 +1,158 @@
+"""Oriented bounding boxes as flat arrays, built from poses.
+
+A pose is ``x y z qx qy qz qw`` (ROS order). Each box is stored as a center (3,), a rotation
+matrix (3, 3) whose columns are the box axes in world coordinates, half extents (3,), an
+axis-aligned bounding box (2, 3) = (min corner, max corner) and the radius of its bounding
+sphere. Everything is float64.
+"""
+import math
+
+import numpy as np
+
+from collision_node._jit import kernel
+
+# A quaternion whose norm is within this of 1 is normalised; farther off it is rejected.
+# 1e-3 accepts quaternions printed with 4+ significant digits or stored as float32, and
+# rejects the zero quaternion and anything that is clearly not a rotation.
+QUATERNION_NORM_TOLERANCE = 1e-3
+
+# The AABB is grown by this fraction of (extent + |center|) per axis so that it always contains
+# the box despite rounding in R·e and at large offsets: a pair the SAT finds touching is never
+# lost by the broad phase.
+AABB_RELATIVE_MARGIN = 1e-12
+
+EPS = float(np.finfo(np.float64).eps)
+# Rounding in a pair's relative pose and projections is a few ulps of the magnitudes involved
+# (centres, extents); this many ulps of that scale is the touching tolerance: closer to
+# touching than that, a verdict may go either way (README, "Accuracy").
+TIE_ULPS = 64.0
+
+# Codes returned by the validating kernel; REASONS turns them into words.
+VALID = 0
+NON_FINITE_POSE = 1
+BAD_QUATERNION = 2
+BAD_HALF_EXTENTS = 3
+REASONS = {
+    NON_FINITE_POSE: 'pose has a NaN or Inf value',
+    BAD_QUATERNION: 'quaternion norm is not within %g of 1 (zero or not a rotation)'
+                    % QUATERNION_NORM_TOLERANCE,
+    BAD_HALF_EXTENTS: 'half extents must be finite and >= 0',
+}
+
+
+class Boxes:
+    """Preallocated structure-of-arrays storage for ``capacity`` boxes."""
+
+    def __init__(self, capacity):
+        self.centers = np.zeros((capacity, 3))
+        self.rotations = np.zeros((capacity, 3, 3))
+        self.half_extents = np.zeros((capacity, 3))
+        self.aabbs = np.zeros((capacity, 2, 3))
+        self.radii = np.zeros(capacity)
+
+    @property
+    def capacity(self):
+        return len(self.radii)
+
+    def grown(self, capacity, keep):
+        """Return storage for ``capacity`` boxes holding a copy of the first ``keep``."""
+        bigger = Boxes(capacity)
+        for name in ('centers', 'rotations', 'half_extents', 'aabbs', 'radii'):
+            getattr(bigger, name)[:keep] = getattr(self, name)[:keep]
+        return bigger
+
+
+def set_boxes(boxes, start, poses, half_extents):
+    """Write boxes from ``poses`` (N, 7) and ``half_extents`` (N, 3) or (3,) at ``start``.
+
+    Raises ValueError naming the first invalid body (index within ``poses``) and why.
+    """
+    poses = np.ascontiguousarray(poses, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 7:
+        raise ValueError('poses must have shape (N, 7) as x y z qx qy qz qw, got %s'
+                         % (poses.shape,))
+    half_extents = np.asarray(half_extents, dtype=np.float64)
+    if half_extents.shape == (3,):
+        half_extents = np.broadcast_to(half_extents, (len(poses), 3))
+    if half_extents.shape != (len(poses), 3):
+        raise ValueError('half extents must have shape (3,) or (%d, 3), got %s'
+                         % (len(poses), half_extents.shape))
+    half_extents = np.ascontiguousarray(half_extents)
+    if start + len(poses) > boxes.capacity:
+        raise ValueError('storage holds %d boxes, %d needed' % (boxes.capacity,
+                                                                start + len(poses)))
+    bad, code = _write_boxes(poses, half_extents, start, boxes.centers, boxes.rotations,
+                             boxes.half_extents, boxes.aabbs, boxes.radii)
+    if bad >= 0:
+        raise ValueError('body %d: %s' % (bad, REASONS[code]))
+
+
+@kernel
+def _rotation_from_quaternion(x, y, z, w, out):
+    out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    out[0, 1] = 2.0 * (x * y - z * w)
+    out[0, 2] = 2.0 * (x * z + y * w)
+    out[1, 0] = 2.0 * (x * y + z * w)
+    out[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    out[1, 2] = 2.0 * (y * z - x * w)
+    out[2, 0] = 2.0 * (x * z - y * w)
+    out[2, 1] = 2.0 * (y * z + x * w)
+    out[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+@kernel
+def _write_boxes(poses, half_extents, start, centers, rotations, extents, aabbs, radii):
+    """Fill the box arrays from index ``start``; return (first bad body, reason) or (-1, 0)."""
+    for i in range(poses.shape[0]):
+        for k in range(7):
+            if not math.isfinite(poses[i, k]):
+                return i, NON_FINITE_POSE
+        x, y, z, w = poses[i, 3], poses[i, 4], poses[i, 5], poses[i, 6]
+        norm = math.sqrt(x * x + y * y + z * z + w * w)
+        if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
+            return i, BAD_QUATERNION
+        for k in range(3):
+            e = half_extents[i, k]
+            if not (math.isfinite(e) and e >= 0.0):
+                return i, BAD_HALF_EXTENTS
+        b = start + i
+        _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm, rotations[b])
+        radius_sq = 0.0
+        for k in range(3):
+            centers[b, k] = poses[i, k]
+            extents[b, k] = half_extents[i, k]
+            radius_sq += half_extents[i, k] * half_extents[i, k]
+        radii[b] = math.sqrt(radius_sq)
+        for k in range(3):
+            reach = 0.0
+            for j in range(3):
+                reach += abs(rotations[b, k, j]) * extents[b, j]
+            reach += AABB_RELATIVE_MARGIN * (reach + abs(centers[b, k]))
+            aabbs[b, 0, k] = centers[b, k] - reach
+            aabbs[b, 1, k] = centers[b, k] + reach
+    return -1, VALID
+
+
+@kernel
+def aabbs_overlap(aabbs, a, b):
+    """True when the (closed) AABBs of boxes a and b overlap or touch."""
+    for k in range(3):
+        if aabbs[a, 0, k] > aabbs[b, 1, k] or aabbs[b, 0, k] > aabbs[a, 1, k]:
+            return False
+    return True
+
+
+@kernel
+def spheres_apart(centers, radii, a, b):
+    """True when the bounding spheres are apart by more than the touching tolerance.
+
+    Compares squared distances (the paper's "no square roots"); the radii are stored.
+    """
+    dist_sq = 0.0
+    scale = radii[a] + radii[b]
+    for i in range(3):
+        d = centers[b, i] - centers[a, i]
+        dist_sq += d * d
+        scale += abs(centers[a, i]) + abs(centers[b, i])
+    reach = radii[a] + radii[b] + TIE_ULPS * EPS * scale
+    return dist_sq > reach * reach

@@ -1,0 +1,184 @@
+"""The collision pipeline without ROS: boxes in, sorted contacts out.
+
+    world = World(broad_phase='auto', sphere_prefilter=True)
+    world.set_static(static_poses, static_half_extents)        # (S, 7), (S, 3)
+    result = world.step(dynamic_poses, dynamic_half_extents)   # (D, 7), (D, 3) or (3,)
+
+Boxes live in one preallocated :class:`~collision_node.obb.Boxes`: static rows first (written
+once), dynamic rows after them (rewritten each tick), so a tick copies no static data.
+"""
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from collision_node.broadphase import make_broad_phase, NAMES, Settings
+from collision_node.obb import Boxes, set_boxes
+from collision_node.sat import collide_pairs, COLLIDING, INVALID
+
+DYNAMIC = 0  # body types, as in the collisions cloud (MoveIt's body_type convention)
+STATIC = 1
+
+CONTACT_DTYPE = np.dtype([
+    ('x', np.float64), ('y', np.float64), ('z', np.float64),
+    ('normal_x', np.float64), ('normal_y', np.float64), ('normal_z', np.float64),
+    ('depth', np.float64),
+    ('id_a', np.uint32), ('type_a', np.uint32), ('id_b', np.uint32), ('type_b', np.uint32),
+])
+
+
+class Result(NamedTuple):
+    """Contacts sorted by (id_a, type_b, id_b), and the tick's statistics."""
+
+    contacts: np.ndarray
+    stats: dict
+
+
+class World:
+    """Static and dynamic oriented boxes and the broad phase that pairs them."""
+
+    def __init__(self, broad_phase='auto', sphere_prefilter=True, octree_max_depth=0,
+                 octree_leaf_cooldown_ticks=15):
+        self._boxes = Boxes(1024)
+        self._n_static = 0
+        self._static_ids = np.zeros(0, np.int64)
+        self._settings = Settings(octree_max_depth, octree_leaf_cooldown_ticks)
+        self._phase_name = broad_phase
+        self._phase = None
+        self.sphere_prefilter = sphere_prefilter
+        self.configure(broad_phase=broad_phase, octree_max_depth=octree_max_depth,
+                       octree_leaf_cooldown_ticks=octree_leaf_cooldown_ticks)
+
+    @property
+    def broad_phase(self):
+        return self._phase_name
+
+    @property
+    def sphere_prefilter(self):
+        return self._sphere_prefilter
+
+    @sphere_prefilter.setter
+    def sphere_prefilter(self, value):
+        self._sphere_prefilter = bool(value)
+        self._last = None
+
+    def configure(self, broad_phase=None, octree_max_depth=None,
+                  octree_leaf_cooldown_ticks=None):
+        """Change the broad phase or its settings; raises ValueError on invalid values."""
+        name = self._phase_name if broad_phase is None else broad_phase
+        settings = self._settings._replace(**{
+            key: value for key, value in (
+                ('octree_max_depth', octree_max_depth),
+                ('octree_leaf_cooldown_ticks', octree_leaf_cooldown_ticks))
+            if value is not None})
+        if name not in NAMES:
+            raise ValueError('unknown broad phase %r; choose one of %s'
+                             % (name, ', '.join(NAMES)))
+        if not 0 <= settings.octree_max_depth <= 10:
+            raise ValueError('octree max depth must be 0 (automatic) to 10, got %r'
+                             % (settings.octree_max_depth,))
+        if settings.octree_leaf_cooldown_ticks < 0:
+            raise ValueError('octree leaf cooldown must be >= 0 ticks, got %r'
+                             % (settings.octree_leaf_cooldown_ticks,))
+        if self._phase is None or name != self._phase_name or settings != self._settings:
+            self._phase_name, self._settings = name, settings
+            self._phase = make_broad_phase(name, settings)
+            self._phase.set_static(self._boxes, self._n_static)
+            self._last = None
+
+    def set_static(self, poses, half_extents, ids=None):
+        """Replace the static boxes; ``ids`` (default 0..S-1) are reported as their id_b.
+
+        Raises ValueError naming the first invalid box.
+        """
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
+        if ids is None:
+            ids = np.arange(len(poses))
+        ids = np.asarray(ids, dtype=np.int64)
+        if ids.shape != (len(poses),):
+            raise ValueError('ids must have one entry per static pose')
+        # Written into new storage so that an invalid box leaves the world as it was.
+        boxes = Boxes(len(poses) + self._boxes.capacity)
+        try:
+            set_boxes(boxes, 0, poses, half_extents)
+        except ValueError as error:
+            raise ValueError('static %s' % error) from None
+        self._boxes = boxes
+        self._n_static = len(poses)
+        self._static_ids = ids
+        self._phase.set_static(self._boxes, self._n_static)
+        self._last = None
+
+    @property
+    def static_count(self):
+        return self._n_static
+
+    def step(self, poses, half_extents):
+        """Collide the dynamic boxes (poses (D, 7), half extents (D, 3) or (3,)).
+
+        Raises ValueError naming the first invalid dynamic body; then nothing is reported.
+        An input identical to the previous one returns the previous result again.
+        """
+        start = time.perf_counter()
+        poses = np.require(poses, np.float64, ['C', 'A', 'W']).reshape(-1, 7)
+        half_extents = np.asarray(half_extents, dtype=np.float64)
+        if self._last is not None and _same(self._last[0], poses) \
+                and _same(self._last[1], half_extents):
+            return self._last[2]._replace(stats=dict(self._last[2].stats, reused=True))
+        n_dynamic = len(poses)
+        n_static = self._n_static
+        if n_static + n_dynamic > self._boxes.capacity:
+            self._boxes = self._boxes.grown(2 * (n_static + n_dynamic), n_static)
+            self._phase.set_static(self._boxes, n_static)
+        set_boxes(self._boxes, n_static, poses, half_extents)
+        prepared = time.perf_counter()
+
+        stats = {'broad_phase': self._phase.name, 'dynamic_bodies': n_dynamic,
+                 'static_bodies': n_static, 'compared': 0, 'candidate_pairs': 0,
+                 'sat_tests': 0, 'colliding_pairs': 0, 'reused': False}
+        if n_dynamic == 0:  # nothing moves: nothing to pair
+            contacts = np.zeros(0, CONTACT_DTYPE)
+            broad_done = narrow_done = prepared
+        else:
+            pairs, compared = self._phase.find_pairs(self._boxes, n_static, n_dynamic)
+            stats['broad_phase'] = self._phase.name
+            broad_done = time.perf_counter()
+            boxes = self._boxes
+            status, depth, normal, point, sat_tests = collide_pairs(
+                boxes.centers, boxes.rotations, boxes.half_extents, boxes.radii, pairs,
+                self._sphere_prefilter)
+            if np.any(status == INVALID):  # validated input cannot get here; never guess
+                raise RuntimeError('the SAT met a NaN on validated input')
+            contacts = self._contacts(pairs, status, depth, normal, point)
+            narrow_done = time.perf_counter()
+            stats.update(compared=int(compared), candidate_pairs=len(pairs),
+                         sat_tests=int(sat_tests), colliding_pairs=len(contacts))
+        stats.update(prepare_ms=1e3 * (prepared - start), broad_ms=1e3 * (broad_done - prepared),
+                     narrow_ms=1e3 * (narrow_done - broad_done),
+                     total_ms=1e3 * (time.perf_counter() - start))
+        result = Result(contacts, stats)
+        self._last = (poses.copy(), half_extents.copy(), result)
+        return result
+
+    def _contacts(self, pairs, status, depth, normal, point):
+        hit = np.flatnonzero(status == COLLIDING)
+        first = pairs[hit, 0]
+        second = pairs[hit, 1]
+        n_static = self._n_static
+        second_is_static = second < n_static
+        contacts = np.empty(len(hit), CONTACT_DTYPE)
+        contacts['x'], contacts['y'], contacts['z'] = point[hit].T
+        contacts['normal_x'], contacts['normal_y'], contacts['normal_z'] = normal[hit].T
+        contacts['depth'] = np.maximum(depth[hit], 0.0)
+        contacts['id_a'] = first - n_static
+        contacts['type_a'] = DYNAMIC
+        id_b = second - n_static
+        id_b[second_is_static] = self._static_ids[second[second_is_static]]
+        contacts['id_b'] = id_b
+        contacts['type_b'] = np.where(second_is_static, STATIC, DYNAMIC)
+        order = np.lexsort((contacts['id_b'], contacts['type_b'], contacts['id_a']))
+        return contacts[order]
+
+
+def _same(previous, current):
+    return previous.shape == current.shape and np.array_equal(previous, current)
