@@ -1,0 +1,35 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'collision_node'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+    ],
+    install_requires=['setuptools', 'numpy', 'numba'],
+    extras_require={
+        'test': ['pytest', 'hypothesis', 'python-fcl'],
+        'bench': ['python-fcl', 'matplotlib'],
+    },
+    zip_safe=False,
+    maintainer='collision_node maintainers',
+    maintainer_email='collision-node@example.com',
+    description='Real-time OBB collision detection node for ROS 2',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'collision_node = collision_node.node:main',
+            'pose_publisher = collision_node.tools.pose_publisher:main',
+            'collision_monitor = collision_node.tools.collision_monitor:main',
+            'collision_demo = collision_node.tools.demo:main',
+            'collision_bench = collision_node.bench:main',
+        ],
+    },
+)
