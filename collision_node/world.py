@@ -13,18 +13,9 @@ from typing import NamedTuple
 import numpy as np
 
 from collision_node.broadphase import make_broad_phase, NAMES, Settings
+from collision_node.contacts import assemble_contacts, CONTACT_DTYPE, DYNAMIC, STATIC  # noqa
 from collision_node.obb import Boxes, set_boxes
-from collision_node.sat import collide_pairs, COLLIDING, INVALID
-
-DYNAMIC = 0  # body types, as in the collisions cloud (MoveIt's body_type convention)
-STATIC = 1
-
-CONTACT_DTYPE = np.dtype([
-    ('x', np.float64), ('y', np.float64), ('z', np.float64),
-    ('normal_x', np.float64), ('normal_y', np.float64), ('normal_z', np.float64),
-    ('depth', np.float64),
-    ('id_a', np.uint32), ('type_a', np.uint32), ('id_b', np.uint32), ('type_b', np.uint32),
-])
+from collision_node.sat import collide_pairs, INVALID
 
 
 class Result(NamedTuple):
@@ -149,7 +140,8 @@ class World:
                 self._sphere_prefilter)
             if np.any(status == INVALID):  # validated input cannot get here; never guess
                 raise RuntimeError('the SAT met a NaN on validated input')
-            contacts = self._contacts(pairs, status, depth, normal, point)
+            contacts = assemble_contacts(pairs, status, depth, normal, point, n_static,
+                                         n_dynamic, self._static_ids)
             narrow_done = time.perf_counter()
             stats.update(compared=int(compared), candidate_pairs=len(pairs),
                          sat_tests=int(sat_tests), colliding_pairs=len(contacts))
@@ -159,25 +151,6 @@ class World:
         result = Result(contacts, stats)
         self._last = (poses.copy(), half_extents.copy(), result)
         return result
-
-    def _contacts(self, pairs, status, depth, normal, point):
-        hit = np.flatnonzero(status == COLLIDING)
-        first = pairs[hit, 0]
-        second = pairs[hit, 1]
-        n_static = self._n_static
-        second_is_static = second < n_static
-        contacts = np.empty(len(hit), CONTACT_DTYPE)
-        contacts['x'], contacts['y'], contacts['z'] = point[hit].T
-        contacts['normal_x'], contacts['normal_y'], contacts['normal_z'] = normal[hit].T
-        contacts['depth'] = np.maximum(depth[hit], 0.0)
-        contacts['id_a'] = first - n_static
-        contacts['type_a'] = DYNAMIC
-        id_b = second - n_static
-        id_b[second_is_static] = self._static_ids[second[second_is_static]]
-        contacts['id_b'] = id_b
-        contacts['type_b'] = np.where(second_is_static, STATIC, DYNAMIC)
-        order = np.lexsort((contacts['id_b'], contacts['type_b'], contacts['id_a']))
-        return contacts[order]
 
 
 def _same(previous, current):

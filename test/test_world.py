@@ -1,0 +1,162 @@
+"""The World API: ids, types, order, static handling, validation and result reuse."""
+import numpy as np
+import pytest
+
+from collision_node import CONTACT_DTYPE, DYNAMIC, STATIC, World
+from collision_node.obb import QUATERNION_NORM_TOLERANCE
+from collision_node.scenes import uniform
+
+IDENTITY = [0.0, 0.0, 0.0, 1.0]
+
+
+def pose(x, y=0.0, z=0.0, quaternion=IDENTITY):
+    return [x, y, z] + list(quaternion)
+
+
+def reference_pairs(static_poses, static_extents, poses, extents):
+    """(id_a, type_b, id_b) of every colliding pair, by SAT on all pairs, no broad phase."""
+    from collision_node.obb import Boxes, set_boxes
+    from collision_node.sat import collide_pairs, COLLIDING
+    n_static, n_dynamic = len(static_poses), len(poses)
+    boxes = Boxes(n_static + n_dynamic)
+    if n_static:
+        set_boxes(boxes, 0, static_poses, static_extents)
+    set_boxes(boxes, n_static, poses, extents)
+    pairs = [(n_static + a, b) for a in range(n_dynamic) for b in range(n_static)]
+    pairs += [(n_static + a, n_static + b) for a in range(n_dynamic)
+              for b in range(a + 1, n_dynamic)]
+    status = collide_pairs(boxes.centers, boxes.rotations, boxes.half_extents, boxes.radii,
+                           np.array(pairs).reshape(-1, 2))[0]
+    found = []
+    for (a, b), verdict in zip(pairs, status):
+        if verdict == COLLIDING:
+            found.append((a - n_static, STATIC if b < n_static else DYNAMIC,
+                          b if b < n_static else b - n_static))
+    return sorted(found)
+
+
+def contact_keys(contacts):
+    return list(zip(contacts['id_a'].tolist(), contacts['type_b'].tolist(),
+                    contacts['id_b'].tolist()))
+
+
+def test_ids_types_and_order_follow_the_cloud_convention():
+    world = World(broad_phase='brute_force')
+    world.set_static([pose(0.0), pose(10.0)], [[1.0, 1.0, 1.0]] * 2, ids=[3, 7])
+    # body 0 overlaps static 7 (the id given); bodies 1 and 2 overlap static 3 and each other.
+    poses = [pose(10.5), pose(0.5), pose(1.2)]
+    result = world.step(poses, [0.5, 0.5, 0.5])
+    assert result.contacts.dtype == CONTACT_DTYPE
+    assert contact_keys(result.contacts) == [(0, STATIC, 7), (1, DYNAMIC, 2), (1, STATIC, 3),
+                                             (2, STATIC, 3)]
+    assert (result.contacts['type_a'] == DYNAMIC).all()
+    assert result.stats['broad_phase'] == 'brute_force'
+    assert result.stats['colliding_pairs'] == 4
+
+
+def test_known_depths_and_normals():
+    world = World(broad_phase='brute_force', sphere_prefilter=False)
+    world.set_static([pose(0.0)], [[1.0, 1.0, 1.0]])
+    result = world.step([pose(1.3, 0.1)], [0.5, 0.5, 0.5])
+    (contact,) = result.contacts
+    # overlap along x: (1 + 0.5) - 1.3 = 0.2; normal from A (the dynamic box) to B (static).
+    assert contact['depth'] == pytest.approx(0.2, abs=1e-12)
+    assert (contact['normal_x'], contact['normal_y'], contact['normal_z']) == \
+        pytest.approx((-1.0, 0.0, 0.0), abs=1e-12)
+    # the contact point lies halfway through the overlap slab x in [0.8, 1.0]
+    assert contact['x'] == pytest.approx(0.9, abs=1e-12)
+
+
+def test_matches_sat_on_all_pairs_over_several_ticks():
+    scene = uniform(400, seed=3)
+    world = World(broad_phase='brute_force')
+    world.set_static(scene.static_poses, scene.static_half_extents)
+    for tick in range(3):
+        poses = scene.dynamic_poses(tick * 0.5)
+        result = world.step(poses, scene.dynamic_half_extents)
+        expected = reference_pairs(scene.static_poses, scene.static_half_extents, poses,
+                                   scene.dynamic_half_extents)
+        assert contact_keys(result.contacts) == expected
+        assert len(expected) > 100  # the scene really collides
+
+
+def test_static_pairs_never_reported_and_no_dynamic_means_no_work():
+    world = World(broad_phase='brute_force')
+    world.set_static([pose(0.0), pose(0.5)], [1.0, 1.0, 1.0])  # overlapping statics
+    result = world.step(np.zeros((0, 7)), [0.5, 0.5, 0.5])
+    assert len(result.contacts) == 0
+    assert result.stats['compared'] == 0 and result.stats['candidate_pairs'] == 0
+
+
+def test_identical_input_reuses_the_result_and_changes_do_not():
+    world = World(broad_phase='brute_force')
+    poses = np.array([pose(0.0), pose(0.5)])
+    first = world.step(poses, [0.5, 0.5, 0.5])
+    again = world.step(poses.copy(), [0.5, 0.5, 0.5])
+    assert again.stats['reused'] and contact_keys(again.contacts) == contact_keys(first.contacts)
+    moved = poses.copy()
+    moved[1, 0] = 5.0
+    after = world.step(moved, [0.5, 0.5, 0.5])
+    assert not after.stats['reused'] and len(after.contacts) == 0
+
+
+def test_dynamic_count_may_change_every_tick():
+    world = World(broad_phase='brute_force')
+    world.set_static([pose(0.0)], [1.0, 1.0, 1.0])
+    for n in (1, 3000, 0, 2, 1500):
+        poses = np.array([pose(0.5 + 3.0 * i) for i in range(n)]).reshape(-1, 7)
+        result = world.step(poses, [0.5, 0.5, 0.5])
+        assert contact_keys(result.contacts) == ([(0, STATIC, 0)] if n else [])
+
+
+@pytest.mark.parametrize('bad, reason', [
+    (pose(np.nan), 'NaN or Inf'),
+    (pose(0.0, np.inf), 'NaN or Inf'),
+    (pose(0.0, quaternion=[0.0, 0.0, 0.0, 0.0]), 'quaternion'),
+    (pose(0.0, quaternion=[0.0, 0.0, 0.0, 1.0 + 3 * QUATERNION_NORM_TOLERANCE]), 'quaternion'),
+    (pose(0.0, quaternion=[np.nan, 0.0, 0.0, 1.0]), 'NaN or Inf'),
+])
+def test_invalid_pose_is_rejected_naming_the_body(bad, reason):
+    world = World(broad_phase='brute_force')
+    with pytest.raises(ValueError, match='body 1: .*%s' % reason):
+        world.step([pose(0.0), bad, pose(2.0)], [0.5, 0.5, 0.5])
+
+
+def test_slightly_off_unit_quaternion_is_normalised():
+    world = World(broad_phase='brute_force')
+    scale = 1.0 + 0.5 * QUATERNION_NORM_TOLERANCE
+    tilted = np.array([0.0, 0.0, np.sin(0.3), np.cos(0.3)])
+    exact = world.step([pose(0.0), pose(1.05, quaternion=tilted)], [0.5, 0.5, 0.5])
+    scaled = World(broad_phase='brute_force').step(
+        [pose(0.0), pose(1.05, quaternion=tilted * scale)], [0.5, 0.5, 0.5])
+    assert contact_keys(exact.contacts) == contact_keys(scaled.contacts) == [(0, DYNAMIC, 1)]
+    assert scaled.contacts['depth'][0] == pytest.approx(exact.contacts['depth'][0], rel=1e-12)
+
+
+@pytest.mark.parametrize('extents, message', [
+    ([0.5, 0.5], 'shape'),
+    ([[0.5, 0.5, 0.5]] * 3, 'shape'),
+    ([0.5, -0.1, 0.5], 'finite and >= 0'),
+    ([0.5, np.nan, 0.5], 'finite and >= 0'),
+])
+def test_invalid_half_extents_are_rejected(extents, message):
+    with pytest.raises(ValueError, match=message):
+        World(broad_phase='brute_force').step([pose(0.0), pose(1.0)], extents)
+
+
+def test_invalid_static_leaves_the_world_unchanged():
+    world = World(broad_phase='brute_force')
+    world.set_static([pose(0.0)], [1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match='static body 1'):
+        world.set_static([pose(5.0), pose(np.nan)], [1.0, 1.0, 1.0])
+    assert world.static_count == 1
+    assert contact_keys(world.step([pose(0.5)], [0.1, 0.1, 0.1]).contacts) == [(0, STATIC, 0)]
+
+
+def test_unknown_settings_are_refused_with_the_choices():
+    with pytest.raises(ValueError, match='brute_force'):
+        World(broad_phase='quadtree')
+    world = World(broad_phase='brute_force')
+    with pytest.raises(ValueError, match='depth'):
+        world.configure(octree_max_depth=-1)
+    assert world.broad_phase == 'brute_force'
