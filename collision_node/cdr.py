@@ -1,0 +1,243 @@
+"""CDR bytes of the node's messages, read and written with numpy (no rclpy import).
+
+rclpy's own conversion between CDR and Python message objects costs ~6 µs per pose; these
+functions read and write the pose and point blocks as single numpy arrays instead.
+
+Layout (plain CDR, XCDR1, as Fast DDS writes it for ROS 2): a 4-byte encapsulation header
+(representation id, big-endian, then 2 option bytes), then the body. Every primitive is aligned
+to its own size, counted from the start of the body. Strings are a uint32 length that includes
+the terminating NUL, then the characters and the NUL. Padding bytes carry no meaning and are
+not zeroed by rclpy, so the parser never looks at them.
+"""
+import functools
+import operator
+import struct
+from typing import NamedTuple
+
+import numpy as np
+
+ENCAPSULATION_SIZE = 4
+# Representation ids of plain CDR (XCDR1). XCDR2 (0x0006..0x000b) aligns float64 to 4 bytes,
+# parameter-list CDR (0x0002, 0x0003) adds member headers: neither is the layout read here.
+CDR_BE = b'\x00\x00'
+CDR_LE = b'\x00\x01'
+# A DDS payload may be padded at its end to a multiple of 4 (the option bytes count that
+# padding); 7 also covers padding to the 8-byte alignment of float64. More is not padding.
+MAX_TRAILING_BYTES = 7
+POSE_FIELDS = 7  # x y z qx qy qz qw, as float64
+POSE_SIZE = POSE_FIELDS * 8
+
+# sensor_msgs/PointField datatype codes of the numpy scalar types a cloud may hold.
+POINT_FIELD_DATATYPES = {
+    np.dtype(np.int8): 1, np.dtype(np.uint8): 2, np.dtype('<i2'): 3, np.dtype('<u2'): 4,
+    np.dtype('<i4'): 5, np.dtype('<u4'): 6, np.dtype('<f4'): 7, np.dtype('<f8'): 8,
+}
+INT32_RANGE = (-2**31, 2**31 - 1)
+UINT32_RANGE = (0, 2**32 - 1)
+
+
+class CdrError(ValueError):
+    """A buffer that is not the CDR of the expected message; the text says what is wrong."""
+
+
+class PoseArrayView(NamedTuple):
+    """A parsed geometry_msgs/PoseArray: stamp, frame and poses (N, 7) x y z qx qy qz qw.
+
+    ``poses`` is float64 in native byte order, C-contiguous and aligned, so numba kernels and
+    ``np.require(poses, np.float64, ['C', 'A', 'W'])`` take it as it is, unless it is a
+    read-only view. It is a view of the buffer when the pose block is little-endian and 8-byte
+    aligned (writeable only if the buffer is: a view of ``bytes`` is read-only), else a
+    writeable copy. rclpy's ``raw=True`` messages are ``bytes`` whose data start 8-byte
+    aligned, which puts the pose block at 4 modulo 8 (after the encapsulation header): they
+    get the copy, so exactly one copy of the poses is made on the way to the kernels.
+    """
+
+    sec: int
+    nanosec: int
+    frame_id: str
+    poses: np.ndarray
+
+
+def parse_pose_array(buffer):
+    """Read a serialized geometry_msgs/PoseArray (e.g. from ``raw=True`` subscriptions).
+
+    Accepts little- and big-endian plain CDR; any object with the buffer protocol.
+    Raises CdrError saying why the buffer is not a PoseArray.
+    """
+    data = np.frombuffer(buffer, dtype=np.uint8)
+    if len(data) < ENCAPSULATION_SIZE:
+        raise CdrError('%d bytes are too short for the 4-byte CDR encapsulation header'
+                       % len(data))
+    representation = data[:2].tobytes()
+    if representation not in (CDR_LE, CDR_BE):
+        raise CdrError('unsupported CDR encapsulation 0x%s; expected plain CDR 0x0001 '
+                       '(little-endian) or 0x0000 (big-endian)' % representation.hex())
+    order = '<' if representation == CDR_LE else '>'
+    body = data[ENCAPSULATION_SIZE:]
+    size = len(body)
+
+    stamp_and_length = struct.Struct(order + 'iII')
+    if size < stamp_and_length.size:
+        raise CdrError('truncated: %d body bytes cannot hold the stamp and the frame_id '
+                       'length (12 bytes)' % size)
+    sec, nanosec, length = stamp_and_length.unpack_from(body)
+    frame_id = _frame_id(body, stamp_and_length.size, length)
+
+    count_at = _aligned(stamp_and_length.size + length, 4)
+    if count_at + 4 > size:
+        raise CdrError('truncated: the pose count would end at body byte %d of %d'
+                       % (count_at + 4, size))
+    count, = struct.unpack_from(order + 'I', body, count_at)
+    poses_at = _aligned(count_at + 4, 8) if count else count_at + 4
+    end = poses_at + count * POSE_SIZE
+    if end > size:
+        raise CdrError('truncated: %d poses need %d body bytes, the buffer has %d'
+                       % (count, end, size))
+    if size - end > MAX_TRAILING_BYTES:
+        raise CdrError('%d bytes follow the last of %d poses; at most %d may be padding'
+                       % (size - end, count, MAX_TRAILING_BYTES))
+
+    poses = np.frombuffer(body, dtype=order + 'f8', count=count * POSE_FIELDS,
+                          offset=poses_at).reshape(count, POSE_FIELDS)
+    if not (poses.dtype.isnative and poses.flags.aligned):
+        poses = poses.astype(np.float64)  # a native, aligned, writeable copy
+    return PoseArrayView(sec, nanosec, frame_id, poses)
+
+
+def serialize_pose_array(sec, nanosec, frame_id, poses):
+    """Little-endian CDR of a geometry_msgs/PoseArray; poses (N, 7) x y z qx qy qz qw.
+
+    Padding is zeroed. Raises ValueError on a stamp out of range, a frame_id with a NUL, or
+    poses of another shape.
+    """
+    poses = np.ascontiguousarray(poses, dtype='<f8')
+    if poses.ndim != 2 or poses.shape[1] != POSE_FIELDS:
+        raise ValueError('poses must have shape (N, 7) as x y z qx qy qz qw, got %s'
+                         % (poses.shape,))
+    writer = _Writer()
+    writer.header(sec, nanosec, frame_id)
+    writer.uint32(len(poses))
+    if len(poses):
+        writer.align(8)
+    writer.append(_bytes_of(poses))
+    return writer.tobytes()
+
+
+def serialize_point_cloud(sec, nanosec, frame_id, points, is_dense=True):
+    """Little-endian CDR of a sensor_msgs/PointCloud2 of height 1 holding ``points``.
+
+    ``points`` is a 1-D structured array; each field becomes a PointField (name, offset,
+    datatype from the field's little-endian scalar type, count 1) and its itemsize the
+    point_step. Raises ValueError for other arrays.
+    """
+    points = np.asarray(points)
+    fields = _point_fields(points.dtype)
+    if points.ndim != 1:
+        raise ValueError('points must be a 1-D structured array, got shape %s'
+                         % (points.shape,))
+    writer = _Writer()
+    writer.header(sec, nanosec, frame_id)
+    writer.uint32(1)  # height
+    writer.uint32(len(points))  # width
+    writer.append(fields)  # 4-aligned at both ends, like the uint32 before it
+    writer.uint8(0)  # is_bigendian
+    writer.uint32(points.dtype.itemsize)  # point_step
+    writer.uint32(points.dtype.itemsize * len(points))  # row_step
+    writer.uint32(points.dtype.itemsize * len(points))  # length of data
+    writer.append(_bytes_of(points))
+    writer.uint8(bool(is_dense))
+    return writer.tobytes()
+
+
+@functools.lru_cache(maxsize=8)  # a node publishes one point type: build its fields once
+def _point_fields(dtype):
+    """Write the PointField sequence describing ``dtype`` as if at a 4-aligned offset."""
+    if dtype.names is None:
+        raise ValueError('points must be a structured array, got dtype %s' % dtype)
+    writer = _Writer()
+    writer.uint32(len(dtype.names))
+    for name in dtype.names:
+        field_type, offset = dtype.fields[name][:2]
+        if field_type not in POINT_FIELD_DATATYPES:
+            raise ValueError('field %r has type %s; a PointField holds one little-endian '
+                             'scalar: %s' % (name, field_type, ', '.join(
+                                 str(t) for t in POINT_FIELD_DATATYPES)))
+        writer.string(name)
+        writer.uint32(offset)
+        writer.uint8(POINT_FIELD_DATATYPES[field_type])
+        writer.uint32(1)  # count
+    return writer.body()
+
+
+def _frame_id(body, start, length):
+    if length == 0:
+        raise CdrError('frame_id length 0: a CDR string holds at least its NUL')
+    end = start + length
+    if end > len(body):
+        raise CdrError('truncated: frame_id of %d bytes would end at body byte %d of %d'
+                       % (length, end, len(body)))
+    text = body[start:end - 1].tobytes()
+    if body[end - 1] != 0:
+        raise CdrError('frame_id does not end with a NUL byte')
+    if b'\x00' in text:
+        raise CdrError('frame_id holds a NUL byte before its end')
+    try:
+        return text.decode('utf-8')
+    except UnicodeDecodeError as error:
+        raise CdrError('frame_id is not UTF-8: %s' % error) from None
+
+
+def _bytes_of(array):
+    """View the array's bytes without a copy (b''.join takes any contiguous buffer)."""
+    return np.ascontiguousarray(array).reshape(-1).view(np.uint8)
+
+
+def _aligned(offset, alignment):
+    return -(-offset // alignment) * alignment
+
+
+class _Writer:
+    """A little-endian CDR body collected as a list of byte strings."""
+
+    def __init__(self):
+        self._parts = []
+        self._size = 0  # body bytes so far: alignment counts from the body's start
+
+    def append(self, part):
+        self._parts.append(part)
+        self._size += len(part)
+
+    def align(self, alignment):
+        self.append(bytes(_aligned(self._size, alignment) - self._size))
+
+    def uint8(self, value):
+        self.append(struct.pack('<B', value))
+
+    def uint32(self, value):
+        self.align(4)
+        self.append(struct.pack('<I', value))
+
+    def string(self, text):
+        if '\x00' in text:
+            raise ValueError('%r: a CDR string cannot hold a NUL character' % text)
+        encoded = text.encode('utf-8')
+        self.uint32(len(encoded) + 1)
+        self.append(encoded + b'\x00')
+
+    def header(self, sec, nanosec, frame_id):
+        """Write std_msgs/Header, checking ranges so that struct never raises its own error."""
+        for name, value, (low, high) in (('sec', sec, INT32_RANGE),
+                                         ('nanosec', nanosec, UINT32_RANGE)):
+            if not low <= operator.index(value) <= high:
+                raise ValueError('stamp %s must be an integer in [%d, %d], got %r'
+                                 % (name, low, high, value))
+        self.align(4)
+        self.append(struct.pack('<iI', sec, nanosec))
+        self.string(frame_id)
+
+    def body(self):
+        return b''.join(self._parts)
+
+    def tobytes(self):
+        """Join the encapsulation header (CDR_LE, no options) and the body."""
+        return b''.join([CDR_LE, b'\x00\x00'] + self._parts)

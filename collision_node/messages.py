@@ -1,0 +1,98 @@
+"""The `collisions` cloud (DESIGN §3): contacts to sensor_msgs/PointCloud2 and back.
+
+One point per colliding pair, height 1, little-endian, dense, point_step 44: FLOAT32
+``x y z normal_x normal_y normal_z depth`` then UINT32 ``id_a type_a id_b type_b``, packed in
+that order. The points are written and read as one numpy block, never point by point.
+
+    contacts = cloud_to_contacts(msg)   # structured array, fields as in the cloud
+"""
+import array
+
+import numpy as np
+from sensor_msgs.msg import PointCloud2, PointField
+
+from collision_node.cdr import POINT_FIELD_DATATYPES, serialize_point_cloud
+from collision_node.world import CONTACT_DTYPE
+
+# The cloud keeps CONTACT_DTYPE's names and order; floats narrow to float32 as DESIGN §3 fixes
+# (a step of 0.06 mm at 1 km from the origin), ids stay uint32.
+CLOUD_DTYPE = np.dtype([
+    (name, '<f4' if CONTACT_DTYPE[name].kind == 'f' else '<u4') for name in CONTACT_DTYPE.names])
+CLOUD_FIELDS = tuple(
+    (name, CLOUD_DTYPE.fields[name][1], POINT_FIELD_DATATYPES[CLOUD_DTYPE[name]], 1)
+    for name in CLOUD_DTYPE.names)  # (name, offset, datatype, count) of each PointField
+
+
+def contacts_to_points(contacts):
+    """Cast contacts (CONTACT_DTYPE or CLOUD_DTYPE fields) to a new CLOUD_DTYPE array."""
+    contacts = _checked_contacts(contacts)
+    points = np.empty(len(contacts), CLOUD_DTYPE)
+    for name in CLOUD_DTYPE.names:
+        points[name] = contacts[name]
+    return points
+
+
+def contacts_to_cloud(contacts, header):
+    """Build the `collisions` PointCloud2 (``width = 0``, empty data when nothing collides).
+
+    ``header`` (std_msgs/Header) is used as is. Raises ValueError for other arrays.
+    """
+    points = contacts_to_points(contacts)
+    cloud = PointCloud2(
+        header=header, height=1, width=len(points),
+        fields=[PointField(name=name, offset=offset, datatype=datatype, count=count)
+                for name, offset, datatype, count in CLOUD_FIELDS],
+        is_bigendian=False, point_step=CLOUD_DTYPE.itemsize,
+        row_step=CLOUD_DTYPE.itemsize * len(points), is_dense=True)
+    # Copied as one block: the constructor would copy ``data`` twice, and the setter tests
+    # each byte of anything but an array.array when ROS_PYTHON_CHECK_FIELDS=1.
+    data = array.array('B')
+    data.frombytes(points.view(np.uint8))
+    cloud.data = data
+    return cloud
+
+
+def serialize_collisions(contacts, sec, nanosec, frame_id):
+    """CDR bytes of :func:`contacts_to_cloud`'s message, for ``publisher.publish(bytes)``."""
+    return serialize_point_cloud(sec, nanosec, frame_id, contacts_to_points(contacts))
+
+
+def cloud_to_contacts(msg):
+    """Read a `collisions` PointCloud2 into a new structured array of CLOUD_DTYPE.
+
+    Raises ValueError saying how the cloud differs from a `collisions` cloud.
+    """
+    if not isinstance(msg, PointCloud2):
+        raise TypeError('expected a sensor_msgs/PointCloud2, got %s' % type(msg).__name__)
+    fields = tuple((f.name, f.offset, f.datatype, f.count) for f in msg.fields)
+    if fields != CLOUD_FIELDS:
+        raise ValueError('not a collisions cloud: fields (name, offset, datatype, count) are '
+                         '%s, expected %s' % (fields, CLOUD_FIELDS))
+    if msg.is_bigendian:
+        raise ValueError('not a collisions cloud: it is big-endian')
+    if msg.point_step != CLOUD_DTYPE.itemsize:
+        raise ValueError('not a collisions cloud: point_step %d, expected %d'
+                         % (msg.point_step, CLOUD_DTYPE.itemsize))
+    if msg.row_step != msg.width * msg.point_step:
+        raise ValueError('inconsistent cloud: row_step %d is not width %d x point_step %d'
+                         % (msg.row_step, msg.width, msg.point_step))
+    if len(msg.data) != msg.height * msg.row_step:
+        raise ValueError('inconsistent cloud: %d data bytes, height %d x row_step %d expected'
+                         % (len(msg.data), msg.height, msg.row_step))
+    return np.frombuffer(msg.data, CLOUD_DTYPE).copy()
+
+
+def _checked_contacts(contacts):
+    contacts = np.asarray(contacts)
+    if contacts.ndim != 1 or contacts.dtype.names is None \
+            or set(contacts.dtype.names) != set(CLOUD_DTYPE.names):
+        raise ValueError('contacts must be a 1-D structured array with the fields %s, got '
+                         'dtype %s, shape %s' % (CLOUD_DTYPE.names, contacts.dtype,
+                                                 contacts.shape))
+    for name in CLOUD_DTYPE.names:
+        # Unsigned ids only: a negative id would wrap to a large uint32 without a word.
+        if contacts.dtype[name].kind != CLOUD_DTYPE[name].kind:
+            raise ValueError('contacts field %r has type %s, expected a %s type'
+                             % (name, contacts.dtype[name],
+                                'float' if CLOUD_DTYPE[name].kind == 'f' else 'unsigned'))
+    return contacts
