@@ -12,7 +12,7 @@ import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 
 from collision_node.cdr import POINT_FIELD_DATATYPES, serialize_point_cloud
-from collision_node.world import CONTACT_DTYPE
+from collision_node.contacts import CONTACT_DTYPE
 
 # The cloud keeps CONTACT_DTYPE's names and order; floats narrow to float32 as DESIGN §3 fixes
 # (a step of 0.06 mm at 1 km from the origin), ids stay uint32.
