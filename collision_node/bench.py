@@ -1,0 +1,397 @@
+"""collision_bench: the seed papers' tables, run time against error, and python-fcl side by side.
+
+    collision_bench --quick --output bench_results     # a subset, under 2 minutes
+    collision_bench --output bench_results             # every scene (long; prints progress)
+
+Writes OUTPUT/results.json (every number), OUTPUT/results.md (the tables, the DESIGN §5
+targets with pass/fail, the command that reproduces them) and OUTPUT/time_vs_error.png.
+python-fcl and matplotlib are optional (the ``bench`` extra): without them the fcl table and
+the plot are left out and say why. Scenes come from :mod:`collision_node.scenes`, seeded.
+"""
+import argparse
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from collision_node.benchmarks import report
+from collision_node.benchmarks.accuracy import accuracy_rows
+from collision_node.benchmarks.fcl_reference import compare_with_fcl, fcl_available, INSTALL_HINT
+from collision_node.benchmarks.stages import profile_stages
+from collision_node.benchmarks.runs import run_all_pairs_sat, run_world, warmed
+from collision_node.broadphase import NAMES
+from collision_node.scenes import make_scene
+
+OCTREE_DEPTHS = tuple(range(1, 10))  # paper 001's Table 1
+PAPER000_OCTREE_DEPTH = 4            # paper 000's octree ran at depth 4
+DEFAULT_PHASE = 'auto'               # what the node uses unless told otherwise
+SECTIONS = ('paper001', 'octree_depths', 'paper000', 'scenes', 'accuracy', 'fcl', 'profile')
+
+
+class Plan(NamedTuple):
+    """What one benchmark run covers. Sizes are total body counts."""
+
+    flying_out_sizes: tuple    # paper 001's scene, every broad phase
+    flying_out_ticks: int
+    flying_out_dt: float       # s; ticks * dt simulated seconds, dense at first, then sparse
+    depth_sizes: tuple         # paper 001's scene, octree depths 1-9
+    paper000_bodies: int
+    paper000_ticks: int
+    scene_sizes: tuple         # (scene, bodies): uniform and clustered, every broad phase
+    scene_ticks: int
+    accuracy_scenes: tuple     # (scene, bodies, ticks, dt)
+    fcl_sizes: tuple           # (bodies, ticks) on the uniform scene
+    profile_sizes: tuple       # (bodies, ticks) on the uniform scene
+    budget_s: float            # a run stops early (marked truncated) after this wall time
+    max_tick_s: float          # a run expected to take longer per tick is skipped
+
+
+DT = 1.0 / 60.0  # s
+PLANS = {
+    'full': Plan(
+        flying_out_sizes=(128, 256, 512, 1024), flying_out_ticks=300, flying_out_dt=DT,
+        depth_sizes=(128, 256, 512, 1024), paper000_bodies=1000, paper000_ticks=300,
+        scene_sizes=tuple((scene, n) for scene in ('uniform', 'clustered')
+                          for n in (1000, 10000, 100000)),
+        scene_ticks=120,
+        accuracy_scenes=(('flying_out', 128, 300, DT), ('flying_out', 256, 300, DT),
+                         ('flying_out', 512, 300, DT), ('flying_out', 1024, 300, DT),
+                         ('paper000', 1000, 120, DT),
+                         ('uniform', 1000, 120, DT), ('uniform', 10000, 20, DT),
+                         ('uniform', 100000, 3, DT),
+                         ('clustered', 1000, 120, DT), ('clustered', 10000, 20, DT),
+                         ('clustered', 100000, 3, DT)),
+        fcl_sizes=((1000, 60), (5000, 30), (10000, 20), (20000, 20)),
+        profile_sizes=((10000, 120), (100000, 30)),
+        budget_s=120.0, max_tick_s=30.0),
+    'quick': Plan(
+        flying_out_sizes=(128, 256, 512, 1024), flying_out_ticks=60, flying_out_dt=5.0 / 60,
+        depth_sizes=(512, 1024), paper000_bodies=1000, paper000_ticks=30,
+        scene_sizes=(('uniform', 1000), ('uniform', 10000), ('uniform', 100000),
+                     ('clustered', 1000), ('clustered', 10000)),
+        scene_ticks=20,
+        accuracy_scenes=(('flying_out', 1024, 20, 0.25), ('paper000', 1000, 10, DT),
+                         ('uniform', 1000, 10, DT), ('clustered', 1000, 10, DT),
+                         ('uniform', 10000, 3, DT)),
+        fcl_sizes=((1000, 10), (5000, 5), (20000, 3)),
+        profile_sizes=((10000, 20), (100000, 5)),
+        budget_s=5.0, max_tick_s=0.25),
+    # For the tests: every section on small scenes, in seconds.
+    'tiny': Plan(
+        flying_out_sizes=(64, 128), flying_out_ticks=10, flying_out_dt=0.5,
+        depth_sizes=(128,), paper000_bodies=200, paper000_ticks=5,
+        scene_sizes=(('uniform', 300), ('clustered', 300)), scene_ticks=5,
+        accuracy_scenes=(('flying_out', 128, 8, 0.5), ('paper000', 200, 5, DT),
+                         ('uniform', 300, 5, DT), ('clustered', 300, 5, DT)),
+        fcl_sizes=((300, 3),), profile_sizes=((1000, 3),),
+        budget_s=5.0, max_tick_s=0.25),
+}
+
+
+class Progress:
+    """Progress lines on stderr, stamped with the seconds since the start."""
+
+    def __init__(self, stream=sys.stderr):
+        self._start = time.perf_counter()
+        self._stream = stream
+
+    def __call__(self, message):
+        print('[%7.1f s] %s' % (time.perf_counter() - self._start, message), file=self._stream,
+              flush=True)
+
+
+class SlowRunFilter:
+    """Skips a run whose tick, scaled as n² from its last smaller size, would be too long.
+
+    n² is the worst any broad phase scales (brute force), so only hopeless runs are skipped,
+    e.g. brute force at 100,000 bodies (~3.75e9 comparisons per tick).
+    """
+
+    def __init__(self, max_tick_s):
+        self._max_tick_s = max_tick_s
+        self._last = {}  # key -> (bodies, median ms)
+
+    def reason_to_skip(self, key, bodies):
+        if key not in self._last:
+            return None
+        last_bodies, last_ms = self._last[key]
+        expected_s = 1e-3 * last_ms * (bodies / last_bodies) ** 2
+        if expected_s <= self._max_tick_s:
+            return None
+        return ('skipped: ~%.3g s per tick expected (%.3g ms at %d bodies, scaled as n^2)'
+                % (expected_s, last_ms, last_bodies))
+
+    def record(self, key, bodies, median_ms):
+        self._last[key] = (bodies, median_ms)
+
+
+class Bench:
+    """Runs the sections of a plan and collects their rows."""
+
+    def __init__(self, plan, seed, progress):
+        self.plan = plan
+        self.seed = seed
+        self.progress = progress
+        self.slow = SlowRunFilter(plan.max_tick_s)
+        self.errors = []
+
+    def scene(self, name, bodies):
+        return make_scene(name, bodies, self.seed)
+
+    def _guarded(self, label, run, *args, **kwargs):
+        """``run(*args, **kwargs)``; an exception becomes an error row instead of a crash."""
+        try:
+            return run(*args, **kwargs)
+        except Exception as error:  # one broken phase must not hide the others' numbers
+            message = '%s: %s: %s' % (label, type(error).__name__, error)
+            self.errors.append(message)
+            self.progress('ERROR ' + message)
+            return {'error': '%s: %s' % (type(error).__name__, error)}
+
+    def _world_row(self, scene, ticks, dt, label, ids, skip_key=None, **world_options):
+        bodies = ids['bodies']
+        reason = skip_key and self.slow.reason_to_skip(skip_key, bodies)
+        if reason:
+            self.progress('%s: %s' % (label, reason))
+            return dict(ids, skipped=reason)
+        before = time.perf_counter()
+        row = self._guarded(label, warmed, run_world, scene, ticks, dt, self.plan.budget_s,
+                            **world_options)
+        if 'error' not in row:
+            if skip_key:
+                self.slow.record(skip_key, bodies, row['median_ms'])
+            self.progress('%s: %d ticks in %.1f s, median %.3f ms'
+                          % (label, row['ticks'], time.perf_counter() - before,
+                             row['median_ms']))
+        return dict(ids, **row)
+
+    def paper001(self):
+        plan = self.plan
+        rows = []
+        for bodies in plan.flying_out_sizes:
+            scene = self.scene('flying_out', bodies)
+            for name in NAMES:
+                rows.append(self._world_row(
+                    scene, plan.flying_out_ticks, plan.flying_out_dt,
+                    'paper001 n=%d %s' % (bodies, name),
+                    {'scene': 'flying_out', 'bodies': bodies, 'broad_phase': name},
+                    broad_phase=name))
+        return rows
+
+    def octree_depths(self):
+        if 'octree' not in NAMES:
+            return [{'skipped': 'no octree broad phase in this build'}]
+        plan = self.plan
+        rows = []
+        for bodies in plan.depth_sizes:
+            scene = self.scene('flying_out', bodies)
+            for depth in OCTREE_DEPTHS:
+                rows.append(self._world_row(
+                    scene, plan.flying_out_ticks, plan.flying_out_dt,
+                    'octree depth %d n=%d' % (depth, bodies),
+                    {'scene': 'flying_out', 'bodies': bodies, 'broad_phase': 'octree',
+                     'depth': depth},
+                    broad_phase='octree', octree_max_depth=depth))
+        return rows
+
+    def paper000(self):
+        plan = self.plan
+        bodies = plan.paper000_bodies
+        scene = self.scene('paper000', bodies)
+        ticks = plan.paper000_ticks
+        rows = []
+
+        def ids(method):
+            return {'scene': 'paper000', 'bodies': bodies, 'method': method}
+
+        before = time.perf_counter()
+        row = self._guarded('paper000 baseline', warmed, run_all_pairs_sat, scene, ticks, DT,
+                            plan.budget_s)
+        self.progress('paper000 baseline (SAT on all pairs): %.1f s'
+                      % (time.perf_counter() - before))
+        rows.append(dict(ids('baseline: SAT on all pairs'), **row))
+        methods = [('sphere test', {'broad_phase': 'sphere', 'sphere_prefilter': False}),
+                   ('brute force AABBs + SAT', {'broad_phase': 'brute_force',
+                                                'sphere_prefilter': False})]
+        if 'octree' in NAMES:
+            octree = {'broad_phase': 'octree', 'octree_max_depth': PAPER000_OCTREE_DEPTH}
+            methods += [('octree depth %d' % PAPER000_OCTREE_DEPTH,
+                         dict(octree, sphere_prefilter=False)),
+                        ('sphere + octree depth %d' % PAPER000_OCTREE_DEPTH,
+                         dict(octree, sphere_prefilter=True))]
+        methods.append(('World default (%s, sphere prefilter)' % DEFAULT_PHASE,
+                        {'broad_phase': DEFAULT_PHASE, 'sphere_prefilter': True}))
+        for method, options in methods:
+            rows.append(self._world_row(scene, ticks, DT, 'paper000 ' + method, ids(method),
+                                        **options))
+        return rows
+
+    def scenes(self):
+        plan = self.plan
+        rows = []
+        for scene_name, bodies in plan.scene_sizes:
+            scene = self.scene(scene_name, bodies)
+            for name in NAMES:
+                rows.append(self._world_row(
+                    scene, plan.scene_ticks, DT, '%s n=%d %s' % (scene_name, bodies, name),
+                    {'scene': scene_name, 'bodies': bodies, 'broad_phase': name},
+                    skip_key=('scenes', scene_name, name), broad_phase=name))
+        return rows
+
+    def accuracy(self):
+        rows = []
+        warm = self.scene('uniform', 64)
+        accuracy_rows(warm, 2, DT, NAMES, self.plan.budget_s)
+        for scene_name, bodies, ticks, dt in self.plan.accuracy_scenes:
+            before = time.perf_counter()
+            self.progress('accuracy %s n=%d: ground truth and %d broad phases, %d ticks'
+                          % (scene_name, bodies, len(NAMES), ticks))
+            found = self._guarded('accuracy %s n=%d' % (scene_name, bodies), accuracy_rows,
+                                  self.scene(scene_name, bodies), ticks, dt, NAMES,
+                                  self.plan.budget_s, self.progress)
+            if isinstance(found, dict):
+                rows.append(dict(found, scene=scene_name, bodies=bodies))
+                continue
+            for row in found:
+                if 'error' in row:
+                    self.errors.append('accuracy %s n=%d %s: %s' % (
+                        scene_name, bodies, row['broad_phase'], row['error']))
+            rows.extend(found)
+            self.progress('accuracy %s n=%d: %.1f s'
+                          % (scene_name, bodies, time.perf_counter() - before))
+        return rows
+
+    def fcl(self):
+        if not fcl_available():
+            return [{'skipped': INSTALL_HINT}]
+        rows = []
+        compare_with_fcl(self.scene('uniform', 64), 2, DT, NAMES, self.plan.budget_s)  # warm
+        for bodies, ticks in self.plan.fcl_sizes:
+            phases = []
+            for name in NAMES:
+                reason = self.slow.reason_to_skip(('fcl', name), bodies)
+                if reason:
+                    rows.append({'scene': 'uniform', 'bodies': bodies, 'broad_phase': name,
+                                 'skipped': reason})
+                else:
+                    phases.append(name)
+            before = time.perf_counter()
+            found = self._guarded('fcl n=%d' % bodies, compare_with_fcl,
+                                  self.scene('uniform', bodies), ticks, DT, phases,
+                                  4 * self.plan.budget_s)
+            if isinstance(found, dict):
+                rows.append(dict(found, scene='uniform', bodies=bodies))
+                continue
+            for row in found:
+                self.slow.record(('fcl', row['broad_phase']), bodies, row['median_ms'])
+            rows.extend(found)
+            self.progress('fcl n=%d: %d ticks in %.1f s, python-fcl median %.1f ms'
+                          % (bodies, found[0]['ticks'] if found else 0,
+                             time.perf_counter() - before,
+                             found[0]['fcl_median_ms'] if found else float('nan')))
+        return rows
+
+    def profile(self):
+        rows = []
+        profile_stages(self.scene('uniform', 64), 2, DT, self.plan.budget_s)  # warm
+        for bodies, ticks in self.plan.profile_sizes:
+            row = self._guarded('profile n=%d' % bodies, profile_stages,
+                                self.scene('uniform', bodies), ticks, DT,
+                                self.plan.budget_s, DEFAULT_PHASE)
+            rows.append(dict(row, scene='uniform', bodies=bodies))
+            if 'error' not in row:
+                self.progress('profile uniform n=%d: tick %.2f ms' % (bodies, row['tick_ms']))
+        return rows
+
+
+def reproduce_command(args):
+    """Return the command line that reproduces this run's numbers."""
+    words = ['collision_bench']
+    if args.plan != 'full':
+        words.append('--' + args.plan)
+    words += ['--seed', str(args.seed), '--output', args.output]
+    if args.only:
+        words += ['--only', ','.join(args.only)]
+    return ' '.join(shlex.quote(word) for word in words)
+
+
+def machine():
+    """Describe the machine and software the numbers were measured on."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open('/proc/cpuinfo') as cpuinfo:
+            cpu = next(line.split(':', 1)[1].strip() for line in cpuinfo
+                       if line.startswith('model name'))
+    except (OSError, StopIteration):
+        pass
+    versions = {'python': platform.python_version(), 'numpy': np.__version__}
+    import numba
+    versions['numba'] = numba.__version__
+    try:
+        from fcl.version import __version__ as fcl_version
+        versions['python-fcl'] = fcl_version
+    except ImportError:
+        versions['python-fcl'] = None
+    try:
+        here = os.path.dirname(os.path.abspath(__file__))
+        commit = subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=here,
+                                capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ''
+    return {'cpu': cpu, 'cores': os.cpu_count(), 'versions': versions,
+            'commit': commit or None, 'date': time.strftime('%Y-%m-%d %H:%M:%S UTC',
+                                                            time.gmtime())}
+
+
+def parse_args(argv):
+    parser = argparse.ArgumentParser(
+        prog='collision_bench', description=__doc__.split('\n\n')[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    size = parser.add_mutually_exclusive_group()
+    size.add_argument('--quick', dest='plan', action='store_const', const='quick',
+                      default='full', help='a subset of every section, under 2 minutes')
+    size.add_argument('--tiny', dest='plan', action='store_const', const='tiny',
+                      help='every section on small scenes, for tests (seconds)')
+    parser.add_argument('--output', default='bench_results',
+                        help='directory for results.json, results.md, time_vs_error.png')
+    parser.add_argument('--seed', type=int, default=0, help='scene seed (default 0)')
+    parser.add_argument('--only', type=lambda text: text.split(','), default=None,
+                        help='comma-separated sections to run: %s' % ','.join(SECTIONS))
+    args = parser.parse_args(argv)
+    unknown = set(args.only or ()) - set(SECTIONS)
+    if unknown:
+        parser.error('unknown section(s) %s; choose from %s'
+                     % (', '.join(sorted(unknown)), ', '.join(SECTIONS)))
+    return args
+
+
+def main(argv=None):
+    """Run the benchmark; return 0, or 1 when a run failed (its error is in the report)."""
+    args = parse_args(argv)
+    plan = PLANS[args.plan]
+    progress = Progress()
+    command = reproduce_command(args)
+    progress('collision_bench (%s plan); reproduce with: %s' % (args.plan, command))
+    bench = Bench(plan, args.seed, progress)
+    results = {'meta': dict(machine(), plan=args.plan, plan_settings=plan._asdict(),
+                            seed=args.seed, command=command, broad_phases=list(NAMES),
+                            default_phase=DEFAULT_PHASE)}
+    started = time.perf_counter()
+    for section in args.only or SECTIONS:
+        progress('section %s' % section)
+        results[section] = getattr(bench, section)()
+    results['meta']['seconds'] = time.perf_counter() - started
+    results['meta']['errors'] = bench.errors
+    paths = report.write(args.output, results)
+    progress('wrote %s' % ', '.join(paths))
+    print('Every number above comes from: %s' % command)
+    return 1 if bench.errors else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

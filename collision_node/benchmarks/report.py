@@ -1,0 +1,325 @@
+"""results.json, results.md and time_vs_error.png from the rows the benchmark collected."""
+import json
+import math
+import os
+
+# DESIGN §5, in the order it lists them.
+FCL_TARGET_BODIES = 20000
+FCL_TARGET_RATIO = 40.0
+TICK_TARGETS_MS = ((10000, 2.0), (100000, 30.0))   # uniform scene, bodies: median ms
+SEED_SCENE_BODIES = 1024
+SEED_SCENE_TARGET_TPS = 1000.0
+
+
+def write(directory, results):
+    """Write the three files into ``directory`` (created if needed); return their paths."""
+    os.makedirs(directory, exist_ok=True)
+    results = dict(results, targets=targets(results))
+    paths = [os.path.join(directory, 'results.json'), os.path.join(directory, 'results.md')]
+    with open(paths[0], 'w') as out:
+        json.dump(results, out, indent=1, default=_plain)
+    plot_note = plot_time_vs_error(results.get('accuracy', []),
+                                   os.path.join(directory, 'time_vs_error.png'))
+    if plot_note is None:
+        paths.append(os.path.join(directory, 'time_vs_error.png'))
+    with open(paths[1], 'w') as out:
+        out.write(markdown(results, plot_note))
+    return paths
+
+
+def _plain(value):
+    """Turn numpy scalars and arrays into plain JSON values."""
+    if hasattr(value, 'tolist'):
+        return value.tolist()
+    raise TypeError('cannot store %r in JSON' % (value,))
+
+
+# --- targets -----------------------------------------------------------------------------
+
+
+def targets(results):
+    """Each DESIGN §5 target: what was measured (default phase, and the best phase), pass/fail.
+
+    ``passed`` is None when this run did not measure the target.
+    """
+    default = results['meta']['default_phase']
+    found = []
+
+    fcl_rows = [row for row in results.get('fcl', [])
+                if row.get('bodies') == FCL_TARGET_BODIES and 'ratio' in row]
+    found.append(_target(
+        '%d bodies (uniform, half static): >= %gx python-fcl, identical pairs'
+        % (FCL_TARGET_BODIES, FCL_TARGET_RATIO), fcl_rows, default,
+        value=lambda row: row['ratio'], better=max,
+        passes=lambda row: (row['ratio'] >= FCL_TARGET_RATIO
+                            and row['only_ours'] + row['only_fcl'] == 0),
+        describe=lambda row: '%.1fx (%.3g ms vs python-fcl %.3g ms), %d pair mismatches' % (
+            row['ratio'], row['median_ms'], row['fcl_median_ms'],
+            row['only_ours'] + row['only_fcl'])))
+
+    for bodies, limit_ms in TICK_TARGETS_MS:
+        rows = [row for row in results.get('scenes', [])
+                if row.get('scene') == 'uniform' and row.get('bodies') == bodies
+                and 'median_ms' in row]
+        found.append(_target(
+            '%d bodies (uniform, half static): <= %g ms per tick (median)' % (bodies, limit_ms),
+            rows, default, value=lambda row: -row['median_ms'], better=max,
+            passes=lambda row, limit_ms=limit_ms: row['median_ms'] <= limit_ms,
+            describe=lambda row: '%.3g ms median, %.3g ms p99' % (row['median_ms'],
+                                                                  row['p99_ms'])))
+
+    rows = [row for row in results.get('paper001', [])
+            if row.get('bodies') == SEED_SCENE_BODIES and 'average_tps' in row]
+    found.append(_target(
+        'seed scene, %d bodies flying out: >= %g ticks/s'
+        % (SEED_SCENE_BODIES, SEED_SCENE_TARGET_TPS),
+        rows, default, value=lambda row: row['average_tps'], better=max,
+        passes=lambda row: row['average_tps'] >= SEED_SCENE_TARGET_TPS,
+        describe=lambda row: '%.0f ticks/s average (slowest tick %.0f ticks/s)' % (
+            row['average_tps'], row['slowest_tps'])))
+
+    for what in ('PoseArray in -> collisions out through ROS, 10,000 bodies: <= 5 ms median',
+                 'JIT: nothing compiles during a tick; node ready <= 5 s with a warm cache'):
+        found.append({'target': what, 'measured': 'not measured by collision_bench '
+                      '(needs the ROS node; see its own benchmark)', 'passed': None})
+    return found
+
+
+def _target(what, rows, default, value, better, passes, describe):
+    by_phase = {row['broad_phase']: row for row in rows}
+    if default not in by_phase:
+        return {'target': what, 'measured': 'not measured in this run', 'passed': None}
+    row = by_phase[default]
+    best = better(by_phase.values(), key=value)
+    return {'target': what, 'phase': default, 'measured': describe(row),
+            'passed': bool(passes(row)), 'best_phase': best['broad_phase'],
+            'best_measured': describe(best), 'best_passed': bool(passes(best))}
+
+
+# --- markdown ----------------------------------------------------------------------------
+
+
+def _number(value, digits=3):
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return ''
+    if isinstance(value, bool):
+        return 'yes' if value else 'no'
+    if isinstance(value, int):
+        return '{:,}'.format(value)
+    if isinstance(value, float):
+        if value >= 10 ** digits:
+            return '{:,.0f}'.format(value)
+        return '%.*g' % (digits, value)
+    return str(value)
+
+
+def table(columns, rows):
+    """Format a markdown table; ``columns`` are (header, function of the row)."""
+    lines = ['| ' + ' | '.join(header for header, _ in columns) + ' |',
+             '|' + '|'.join('---' for _ in columns) + '|']
+    for row in rows:
+        if 'skipped' in row or 'error' in row:
+            # Keep the identifying columns, then say why there are no numbers.
+            cells = []
+            for header, cell in columns:
+                try:
+                    cells.append(_number(cell(row)))
+                except KeyError:
+                    cells.append('')
+            note = row.get('skipped') or 'ERROR ' + row['error']
+            filled = [c for c in cells if c]
+            cells = filled + [note] + [''] * (len(columns) - len(filled) - 1)
+            lines.append('| ' + ' | '.join(cells[:len(columns)]) + ' |')
+            continue
+        lines.append('| ' + ' | '.join(_number(cell(row)) for _, cell in columns) + ' |')
+    return '\n'.join(lines)
+
+
+def _get(key):
+    return lambda row: row[key]
+
+
+def _phase_label(row):
+    """Name the broad phase, and what ``auto`` picked."""
+    name = row['broad_phase']
+    used = row.get('phases_used')
+    if used and used != [name]:
+        return '%s (ran %s)' % (name, ', '.join(used))
+    return name
+
+
+TICK_COLUMNS = [
+    ('ticks', lambda row: '%d%s' % (row['ticks'], ' (stopped early)' if row['truncated']
+                                    else '')),
+    ('slowest ticks/s', _get('slowest_tps')),
+    ('quickest ticks/s', _get('quickest_tps')),
+    ('average ticks/s', _get('average_tps')),
+    ('least compared', _get('compared_min')),
+    ('most compared', _get('compared_max')),
+    ('median ms', _get('median_ms')),
+    ('p99 ms', _get('p99_ms')),
+    ('colliding pairs (max)', _get('colliding_max')),
+]
+
+
+def markdown(results, plot_note):
+    meta = results['meta']
+    settings = meta['plan_settings']
+    out = ['# collision_bench results', '',
+           'Reproduce every number below with `%s` (run from the repository, `pip install '
+           '-e .[bench]`).' % meta['command'], '',
+           '- machine: %s, %s cores; %s' % (meta['cpu'], meta['cores'], ', '.join(
+               '%s %s' % item for item in meta['versions'].items())),
+           '- commit %s, %s; plan `%s`, seed %d, %.0f s'
+           % (meta['commit'], meta['date'], meta['plan'], meta['seed'], meta['seconds']),
+           '- broad phases: %s; the World default is `%s` with the sphere prefilter'
+           % (', '.join(meta['broad_phases']), meta['default_phase']),
+           '- a tick is one `World.step` (poses in, sorted contacts out) timed from outside; '
+           'ticks/s = 1 / tick time: slowest = 1 / longest tick, quickest = 1 / shortest, '
+           'average = ticks / total time. "compared" is `Result.stats["compared"]`, the pair '
+           'comparisons the broad phase made (the papers\' "pairs compared").', '']
+    if meta['errors']:
+        out += ['**Errors** (their rows say ERROR):', ''] + [
+            '- %s' % error for error in meta['errors']] + ['']
+
+    out += ['## Targets (DESIGN §5)', '',
+            table([('target', _get('target')), ('default phase', lambda r: r.get('phase')),
+                   ('measured', _get('measured')),
+                   ('pass', lambda r: {True: 'PASS', False: 'FAIL', None: 'n/a'}[r['passed']]),
+                   ('best phase', lambda r: r.get('best_phase')),
+                   ('best measured', lambda r: r.get('best_measured')),
+                   ('best pass', lambda r: {True: 'PASS', False: 'FAIL', None: ''}[
+                       r.get('best_passed')])],
+                  results['targets']), '']
+
+    if 'paper001' in results:
+        out += ['## Paper 001: bodies flying out from the origin (its Table 2, every broad '
+                'phase)', '',
+                'Cubes of half extent 0.5 m start packed around the origin and fly outward at '
+                '1-3 m/s: dense first, sparse later; no static bodies. %d ticks of %.4g s '
+                '(%.3g s simulated).' % (settings['flying_out_ticks'],
+                                         settings['flying_out_dt'],
+                                         settings['flying_out_ticks']
+                                         * settings['flying_out_dt']), '',
+                table([('broad phase', _phase_label), ('bodies', _get('bodies'))] + TICK_COLUMNS,
+                      results['paper001']), '']
+    if 'octree_depths' in results:
+        out += ['## Paper 001: octree depth (its Table 1)', '',
+                table([('octree depth', _get('depth')), ('bodies', _get('bodies'))]
+                      + TICK_COLUMNS, results['octree_depths']), '']
+    if 'paper000' in results:
+        rows = results['paper000']
+        baseline = rows[0].get('average_tps') if rows else None
+        out += ['## Paper 000: 500 static + 500 dynamic boxes', '',
+                'Baseline = the SAT on every dynamic-static and dynamic-dynamic pair, as in '
+                'the paper; "sphere test" = bounding spheres, then the SAT; the octree at '
+                'depth 4, as in the paper.', '',
+                table([('method', _get('method'))] + TICK_COLUMNS + [
+                    ('speed-up vs baseline (average)',
+                     lambda row: (row['average_tps'] / baseline) if baseline else None),
+                    ('SAT tests (max)', _get('sat_tests_max'))], rows), '']
+    if 'scenes' in results:
+        out += ['## Uniform and clustered scenes', '',
+                'Half the bodies static; uniform: about one colliding pair per body; '
+                'clustered: 90 % of the bodies in one corner cube of half the side.', '',
+                table([('scene', _get('scene')), ('bodies', _get('bodies')),
+                       ('broad phase', _phase_label)] + TICK_COLUMNS
+                      + [('candidates (max)', _get('candidate_pairs_max'))],
+                      results['scenes']), '']
+    if 'accuracy' in results:
+        out += ['## Run time against error', '',
+                'Errors are pair-set differences against the float64 SAT on all pairs, summed '
+                'over the ticks. Modes: "broad phase only" calls every candidate pair a '
+                'collision (the classic octree of paper 001); "spheres only" / "AABBs only" the '
+                'candidates whose bounding volumes overlap; "SAT float32 boxes" the SAT on '
+                'the boxes rounded to float32; "SAT float64" the World as shipped. "compared" '
+                'is per tick (mean).', '',
+                table([('scene', _get('scene')), ('bodies', _get('bodies')),
+                       ('broad phase', _get('broad_phase')), ('mode', _get('mode')),
+                       ('ticks', _get('ticks')), ('compared', _get('compared')),
+                       ('true pairs', _get('true_pairs')),
+                       ('false positives', _get('false_positives')),
+                       ('false negatives', _get('false_negatives')),
+                       ('median ms', _get('median_ms')), ('p99 ms', _get('p99_ms'))],
+                      results['accuracy']), '',
+                plot_note or '![run time against error](time_vs_error.png)', '']
+    if 'fcl' in results:
+        out += ['## python-fcl side by side', '',
+                'Uniform scene, half the bodies static. python-fcl: two '
+                'DynamicAABBTreeCollisionManagers (static built once; dynamic transforms set '
+                'from the same pose array each tick, then `update()`), `collide` with '
+                'the `defaultCollisionCallback` of python-fcl; its time is update + collide. '
+                'Mismatches: pairs only one side reports, summed over the ticks.', '',
+                table([('bodies', _get('bodies')), ('broad phase', _get('broad_phase')),
+                       ('ticks', _get('ticks')), ('ours median ms', _get('median_ms')),
+                       ('python-fcl median ms', _get('fcl_median_ms')),
+                       ('fcl update ms', _get('fcl_update_ms')),
+                       ('fcl collide ms', _get('fcl_collide_ms')),
+                       ('python-fcl / ours', _get('ratio')),
+                       ('pairs per tick', _get('pairs_per_tick')),
+                       ('only ours', _get('only_ours')), ('only fcl', _get('only_fcl'))],
+                      results['fcl']), '']
+    if 'profile' in results:
+        out += ['## Where a tick goes (median ms)', '',
+                'The stages World.step reports (prepare = input checks + set_boxes, narrow = '
+                'SAT + contact assembly, other = the rest of the call), then the same pipeline '
+                'timed stage by stage from the public pieces.', '',
+                table([('scene', _get('scene')), ('bodies', _get('bodies')),
+                       ('broad phase', _phase_label), ('ticks', _get('ticks')),
+                       ('tick', _get('tick_ms')), ('prepare', _get('prepare_ms')),
+                       ('broad', _get('broad_ms')), ('narrow', _get('narrow_ms')),
+                       ('other', _get('other_ms')), ('set_boxes', _get('set_boxes_ms')),
+                       ('find_pairs', _get('find_pairs_ms')), ('SAT', _get('sat_ms')),
+                       ('contacts', _get('contacts_ms'))],
+                      results['profile']), '']
+    return '\n'.join(out)
+
+
+# --- plot --------------------------------------------------------------------------------
+
+
+def plot_time_vs_error(rows, path):
+    """Median tick time against errors per tick, one panel per scene; None, or why not."""
+    rows = [row for row in rows if 'false_positives' in row]
+    if not rows:
+        return 'No accuracy rows in this run: no time_vs_error.png.'
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return ('matplotlib is not installed (pip install matplotlib, the "bench" extra): '
+                'no time_vs_error.png.')
+    panels = sorted({(row['scene'], row['bodies']) for row in rows})
+    modes = list(dict.fromkeys(row['mode'] for row in rows))
+    phases = list(dict.fromkeys(row['broad_phase'] for row in rows))
+    markers = 'osD^v<>phX*'
+    colours = plt.get_cmap('tab10')
+    columns = min(3, len(panels))
+    lines = math.ceil(len(panels) / columns)
+    figure, axes = plt.subplots(lines, columns, figsize=(5 * columns, 4 * lines),
+                                squeeze=False)
+    for ax, (scene, bodies) in zip(axes.flat, panels):
+        for row in rows:
+            if (row['scene'], row['bodies']) != (scene, bodies):
+                continue
+            errors = (row['false_positives'] + row['false_negatives']) / row['ticks']
+            ax.scatter(row['median_ms'], errors, color=colours(modes.index(row['mode'])),
+                       marker=markers[phases.index(row['broad_phase']) % len(markers)])
+        ax.set_xscale('log')
+        ax.set_yscale('symlog', linthresh=1.0)
+        ax.set_title('%s, %d bodies' % (scene, bodies))
+        ax.set_xlabel('median tick time (ms)')
+        ax.set_ylabel('wrong pairs per tick (FP + FN)')
+        ax.grid(True, which='both', alpha=0.3)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis('off')
+    handles = [plt.Line2D([], [], color=colours(i), marker='o', linestyle='', label=mode)
+               for i, mode in enumerate(modes)]
+    handles += [plt.Line2D([], [], color='grey', marker=markers[i % len(markers)],
+                           linestyle='', label=phase) for i, phase in enumerate(phases)]
+    figure.legend(handles=handles, loc='lower center', ncol=min(6, len(handles)))
+    figure.tight_layout(rect=(0, 0.08, 1, 1))
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return None

@@ -1,0 +1,65 @@
+"""Where a tick's time goes, at the sizes of the performance targets.
+
+Two views of the same ticks: the stage timings the World reports in ``Result.stats``
+(prepare = input checks + set_boxes, broad, narrow = SAT + contact assembly, other = the
+rest of ``step`` as seen from outside), and the same pipeline rebuilt from the public pieces
+and timed stage by stage (set_boxes, find_pairs, the SAT with the sphere prefilter, contact
+assembly), which splits the World's stages further.
+"""
+import time
+
+import numpy as np
+
+from collision_node.benchmarks.runs import tick_poses
+from collision_node.broadphase import make_broad_phase, Settings
+from collision_node.contacts import assemble_contacts
+from collision_node.obb import Boxes, set_boxes
+from collision_node.sat import collide_pairs
+from collision_node.world import World
+
+WORLD_STAGES = ('tick', 'prepare', 'broad', 'narrow', 'other')
+PIPELINE_STAGES = ('set_boxes', 'find_pairs', 'sat', 'contacts')
+
+
+def profile_stages(scene, ticks, dt, budget_s, phase_name='auto'):
+    """Median milliseconds per stage over the ticks, both views, keyed by stage name."""
+    n_static = len(scene.static_poses)
+    n_dynamic = scene.dynamic_count
+    world = World(broad_phase=phase_name)
+    world.set_static(scene.static_poses, scene.static_half_extents)
+    boxes = Boxes(n_static + n_dynamic)
+    set_boxes(boxes, 0, scene.static_poses, scene.static_half_extents)
+    phase = make_broad_phase(phase_name, Settings())
+    phase.set_static(boxes, n_static)
+    static_ids = np.arange(n_static)
+    ms = {stage: [] for stage in WORLD_STAGES + PIPELINE_STAGES}
+    phases_used = set()
+    started = time.perf_counter()
+    for _, poses in tick_poses(scene, ticks, dt):
+        before = time.perf_counter()
+        stats = world.step(poses, scene.dynamic_half_extents).stats
+        tick = 1e3 * (time.perf_counter() - before)
+        phases_used.add(stats['broad_phase'])
+        ms['tick'].append(tick)
+        for stage in ('prepare', 'broad', 'narrow'):
+            ms[stage].append(stats[stage + '_ms'])
+        ms['other'].append(tick - stats['prepare_ms'] - stats['broad_ms'] - stats['narrow_ms'])
+
+        times = [time.perf_counter()]
+        set_boxes(boxes, n_static, poses, scene.dynamic_half_extents)
+        times.append(time.perf_counter())
+        pairs, _ = phase.find_pairs(boxes, n_static, n_dynamic)
+        times.append(time.perf_counter())
+        status, depth, normal, point, _ = collide_pairs(
+            boxes.centers, boxes.rotations, boxes.half_extents, boxes.radii, pairs, True)
+        times.append(time.perf_counter())
+        assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids)
+        times.append(time.perf_counter())
+        for stage, begin, end in zip(PIPELINE_STAGES, times, times[1:]):
+            ms[stage].append(1e3 * (end - begin))
+        if time.perf_counter() - started > budget_s:
+            break
+    row = {stage + '_ms': float(np.median(values)) for stage, values in ms.items()}
+    row.update(scene=scene.name, bodies=n_static + n_dynamic, broad_phase=phase_name,
+               phases_used=sorted(phases_used), ticks=len(ms['tick']))
+    return row

@@ -1,0 +1,169 @@
+"""collision_bench on its tiny plan: the files, their columns, and properties that must hold."""
+import itertools
+import json
+
+import numpy as np
+import pytest
+
+from collision_node import bench
+from collision_node.benchmarks.accuracy import (
+    AABBS_ONLY, BROAD_ONLY, contact_keys, MODES, pair_errors, pair_keys, SAT_FLOAT32,
+    SAT_FLOAT64, SPHERES_ONLY)
+from collision_node.benchmarks.runs import all_pairs
+from collision_node.broadphase import NAMES
+from collision_node.world import CONTACT_DTYPE, DYNAMIC, STATIC
+
+
+@pytest.fixture(scope='module')
+def tiny_run(tmp_path_factory):
+    output = tmp_path_factory.mktemp('bench')
+    status = bench.main(['--tiny', '--output', str(output)])
+    with open(output / 'results.json') as results:
+        return status, output, json.load(results)
+
+
+def test_tiny_run_succeeds_and_names_its_command(tiny_run):
+    status, output, results = tiny_run
+    assert status == 0, results['meta']['errors']
+    assert results['meta']['errors'] == []
+    assert results['meta']['command'] == 'collision_bench --tiny --seed 0 --output %s' % output
+    assert results['meta']['command'] in (output / 'results.md').read_text()
+
+
+def test_writes_the_report_files(tiny_run):
+    _, output, _ = tiny_run
+    markdown = (output / 'results.md').read_text()
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        assert 'matplotlib is not installed' in markdown
+    else:
+        assert (output / 'time_vs_error.png').stat().st_size > 0
+        assert '![run time against error](time_vs_error.png)' in markdown
+
+
+def _header_of_table_after(markdown, heading):
+    lines = markdown[markdown.index(heading):].splitlines()
+    return next(line for line in lines if line.startswith('| '))
+
+
+def test_markdown_tables_have_the_named_columns(tiny_run):
+    _, output, _ = tiny_run
+    markdown = (output / 'results.md').read_text()
+    accuracy = [cell.strip() for cell in
+                _header_of_table_after(markdown, '## Run time against error').split('|')]
+    for column in ('broad phase', 'mode', 'compared', 'false positives', 'false negatives',
+                   'median ms', 'p99 ms'):
+        assert column in accuracy
+    paper = _header_of_table_after(markdown, '## Paper 001')
+    for column in ('slowest ticks/s', 'quickest ticks/s', 'average ticks/s', 'least compared',
+                   'most compared'):
+        assert column in paper
+    for heading in ('## Targets (DESIGN §5)', '## Paper 000', '## python-fcl side by side',
+                    '## Where a tick goes'):
+        assert heading in markdown
+
+
+def test_every_broad_phase_runs_in_every_mode(tiny_run):
+    _, _, results = tiny_run
+    scenes = {(row['scene'], row['bodies']) for row in results['accuracy']}
+    for scene in scenes:
+        measured = {(row['broad_phase'], row['mode']) for row in results['accuracy']
+                    if (row['scene'], row['bodies']) == scene}
+        assert measured == set(itertools.product(NAMES, MODES))
+
+
+def test_sat_float64_matches_ground_truth_exactly(tiny_run):
+    _, _, results = tiny_run
+    rows = [row for row in results['accuracy'] if row['mode'] == SAT_FLOAT64]
+    assert rows
+    for row in rows:
+        assert (row['false_positives'], row['false_negatives']) == (0, 0), row
+
+
+def test_bounding_volume_modes_never_miss_a_collision(tiny_run):
+    _, _, results = tiny_run
+    by_key = {(row['scene'], row['bodies'], row['broad_phase'], row['mode']): row
+              for row in results['accuracy']}
+    for (scene, bodies, phase, mode), row in by_key.items():
+        if mode in (BROAD_ONLY, SPHERES_ONLY, AABBS_ONLY):
+            assert row['false_negatives'] == 0, row
+            assert row['false_positives'] >= 0
+        if mode in (SPHERES_ONLY, AABBS_ONLY):
+            # A filter on the broad phase's candidates can only drop pairs.
+            broad = by_key[(scene, bodies, phase, BROAD_ONLY)]
+            assert row['false_positives'] <= broad['false_positives']
+        if mode == SAT_FLOAT32:
+            assert row['false_positives'] >= 0 and row['false_negatives'] >= 0
+    # The scenes do have near misses: bounding volumes alone report pairs that do not touch.
+    assert any(row['false_positives'] > 0 for row in results['accuracy']
+               if row['mode'] == BROAD_ONLY)
+
+
+def test_brute_force_compares_every_pair(tiny_run):
+    _, _, results = tiny_run
+    for row in results['paper001']:
+        if row['broad_phase'] == 'brute_force':
+            n = row['bodies']  # flying out: every body is dynamic
+            assert row['compared_min'] == row['compared_max'] == n * (n - 1) // 2
+    baseline = results['paper000'][0]
+    dynamic = results['meta']['plan_settings']['paper000_bodies'] // 2
+    static = results['meta']['plan_settings']['paper000_bodies'] - dynamic
+    assert baseline['compared_max'] == dynamic * static + dynamic * (dynamic - 1) // 2
+
+
+def test_ticks_per_second_are_ordered(tiny_run):
+    _, _, results = tiny_run
+    rows = [row for section in ('paper001', 'paper000', 'scenes') for row in results[section]
+            if 'average_tps' in row]
+    assert rows
+    for row in rows:
+        assert row['slowest_tps'] <= row['average_tps'] <= row['quickest_tps']
+        assert row['compared_min'] <= row['compared_max']
+
+
+def test_python_fcl_finds_the_same_pairs(tiny_run):
+    _, _, results = tiny_run
+    rows = [row for row in results['fcl'] if 'ratio' in row]
+    assert {row['broad_phase'] for row in rows} == set(NAMES)
+    for row in rows:
+        assert row['pairs_per_tick'] > 0
+        assert (row['only_ours'], row['only_fcl']) == (0, 0), row
+
+
+def test_every_target_is_listed(tiny_run):
+    _, _, results = tiny_run
+    assert len(results['targets']) == 6
+    for target in results['targets']:
+        assert target['passed'] in (True, False, None)
+
+
+def test_unknown_section_is_refused(capsys):
+    with pytest.raises(SystemExit):
+        bench.main(['--tiny', '--only', 'paper001,nonsense'])
+    assert 'nonsense' in capsys.readouterr().err
+
+
+def test_all_pairs_lists_each_pair_with_a_dynamic_body_once():
+    n_static, n_dynamic = 3, 4
+    expected = {frozenset(pair) for pair in itertools.combinations(range(7), 2)
+                if max(pair) >= n_static}
+    pairs = all_pairs(n_static, n_dynamic)
+    assert len(pairs) == len(expected)
+    assert {frozenset(pair) for pair in pairs.tolist()} == expected
+    assert np.all(pairs[:, 0] >= n_static)
+
+
+def test_pair_keys_ignore_order_and_duplicates():
+    keys = pair_keys(np.array([[5, 2], [2, 5], [7, 1]]), 10)
+    assert keys.tolist() == [17, 25]
+    assert pair_errors(np.array([1, 2, 3]), np.array([2, 3, 4])) == (1, 1)
+
+
+def test_contact_keys_map_ids_back_to_rows():
+    contacts = np.zeros(2, CONTACT_DTYPE)
+    contacts['id_a'] = [0, 1]
+    contacts['id_b'] = [2, 2]
+    contacts['type_b'] = [STATIC, DYNAMIC]
+    # 3 static rows, then dynamic rows: dynamic 0 -> row 3; static 2 -> row 2.
+    assert contact_keys(contacts, 3, 10).tolist() == [2 * 10 + 3, 4 * 10 + 5]
