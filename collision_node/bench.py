@@ -46,7 +46,7 @@ class Plan(NamedTuple):
     scene_ticks: int
     accuracy_scenes: tuple     # (scene, bodies, ticks, dt)
     fcl_sizes: tuple           # (bodies, ticks) on the uniform scene
-    profile_sizes: tuple       # (bodies, ticks) on the uniform scene
+    profile_sizes: tuple       # (scene, bodies, ticks, dt): the targets' scenes
     budget_s: float            # a run stops early (marked truncated) after this wall time
     max_tick_s: float          # a run expected to take longer per tick is skipped
 
@@ -67,7 +67,8 @@ PLANS = {
                          ('clustered', 1000, 120, DT), ('clustered', 10000, 20, DT),
                          ('clustered', 100000, 3, DT)),
         fcl_sizes=((1000, 60), (5000, 30), (10000, 20), (20000, 20)),
-        profile_sizes=((10000, 120), (100000, 30)),
+        profile_sizes=(('flying_out', 1024, 300, DT), ('uniform', 10000, 120, DT),
+                       ('uniform', 100000, 30, DT)),
         budget_s=120.0, max_tick_s=30.0),
     'quick': Plan(
         flying_out_sizes=(128, 256, 512, 1024), flying_out_ticks=60, flying_out_dt=5.0 / 60,
@@ -79,7 +80,8 @@ PLANS = {
                          ('uniform', 1000, 10, DT), ('clustered', 1000, 10, DT),
                          ('uniform', 10000, 3, DT)),
         fcl_sizes=((1000, 10), (5000, 5), (20000, 3)),
-        profile_sizes=((10000, 20), (100000, 5)),
+        profile_sizes=(('flying_out', 1024, 60, 5.0 / 60), ('uniform', 10000, 20, DT),
+                       ('uniform', 100000, 5, DT)),
         budget_s=5.0, max_tick_s=0.25),
     # For the tests: every section on small scenes, in seconds.
     'tiny': Plan(
@@ -88,7 +90,8 @@ PLANS = {
         scene_sizes=(('uniform', 300), ('clustered', 300)), scene_ticks=5,
         accuracy_scenes=(('flying_out', 128, 8, 0.5), ('paper000', 200, 5, DT),
                          ('uniform', 300, 5, DT), ('clustered', 300, 5, DT)),
-        fcl_sizes=((300, 3),), profile_sizes=((1000, 3),),
+        fcl_sizes=((300, 3),),
+        profile_sizes=(('flying_out', 128, 5, 0.5), ('uniform', 1000, 3, DT)),
         budget_s=5.0, max_tick_s=0.25),
 }
 
@@ -272,40 +275,49 @@ class Bench:
         rows = []
         compare_with_fcl(self.scene('uniform', 64), 2, DT, NAMES, self.plan.budget_s)  # warm
         for bodies, ticks in self.plan.fcl_sizes:
-            phases = []
+            skipped = {}
             for name in NAMES:
                 reason = self.slow.reason_to_skip(('fcl', name), bodies)
                 if reason:
-                    rows.append({'scene': 'uniform', 'bodies': bodies, 'broad_phase': name,
-                                 'skipped': reason})
-                else:
-                    phases.append(name)
+                    skipped[name] = reason
             before = time.perf_counter()
             found = self._guarded('fcl n=%d' % bodies, compare_with_fcl,
-                                  self.scene('uniform', bodies), ticks, DT, phases,
+                                  self.scene('uniform', bodies), ticks, DT,
+                                  [name for name in NAMES if name not in skipped],
                                   4 * self.plan.budget_s)
             if isinstance(found, dict):
                 rows.append(dict(found, scene='uniform', bodies=bodies))
                 continue
-            for row in found:
+            reference, measured = found
+            for row in measured:
                 self.slow.record(('fcl', row['broad_phase']), bodies, row['median_ms'])
-            rows.extend(found)
+            rows.extend(measured)
+            rows.extend(dict(reference, broad_phase=name, skipped=reason)
+                        for name, reason in skipped.items())
             self.progress('fcl n=%d: %d ticks in %.1f s, python-fcl median %.1f ms'
-                          % (bodies, found[0]['ticks'] if found else 0,
-                             time.perf_counter() - before,
-                             found[0]['fcl_median_ms'] if found else float('nan')))
+                          % (bodies, reference['ticks'], time.perf_counter() - before,
+                             reference['fcl_median_ms']))
         return rows
 
     def profile(self):
         rows = []
         profile_stages(self.scene('uniform', 64), 2, DT, self.plan.budget_s)  # warm
-        for bodies, ticks in self.plan.profile_sizes:
-            row = self._guarded('profile n=%d' % bodies, profile_stages,
-                                self.scene('uniform', bodies), ticks, DT,
-                                self.plan.budget_s, DEFAULT_PHASE)
-            rows.append(dict(row, scene='uniform', bodies=bodies))
+        for scene_name, bodies, ticks, dt in self.plan.profile_sizes:
+            # The scenes section ran the same configuration before: its tick times count.
+            key = ('scenes', scene_name, DEFAULT_PHASE)
+            label = 'profile %s n=%d' % (scene_name, bodies)
+            ids = {'scene': scene_name, 'bodies': bodies, 'broad_phase': DEFAULT_PHASE}
+            reason = self.slow.reason_to_skip(key, bodies)
+            if reason:
+                self.progress('%s: %s' % (label, reason))
+                rows.append(dict(ids, skipped=reason))
+                continue
+            row = self._guarded(label, profile_stages, self.scene(scene_name, bodies), ticks,
+                                dt, self.plan.budget_s, DEFAULT_PHASE)
+            rows.append(dict(ids, **row))
             if 'error' not in row:
-                self.progress('profile uniform n=%d: tick %.2f ms' % (bodies, row['tick_ms']))
+                self.slow.record(key, bodies, row['tick_ms'])
+                self.progress('%s: tick %.3f ms' % (label, row['tick_ms']))
         return rows
 
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from collision_node import bench
+from collision_node.benchmarks import report
 from collision_node.benchmarks.accuracy import (
     AABBS_ONLY, BROAD_ONLY, contact_keys, MODES, pair_errors, pair_keys, SAT_FLOAT32,
     SAT_FLOAT64, SPHERES_ONLY)
@@ -167,3 +168,20 @@ def test_contact_keys_map_ids_back_to_rows():
     contacts['type_b'] = [STATIC, DYNAMIC]
     # 3 static rows, then dynamic rows: dynamic 0 -> row 3; static 2 -> row 2.
     assert contact_keys(contacts, 3, 10).tolist() == [2 * 10 + 3, 4 * 10 + 5]
+
+
+def test_slow_runs_are_skipped_by_quadratic_extrapolation():
+    slow = bench.SlowRunFilter(max_tick_s=1.0)
+    assert slow.reason_to_skip('run', 1000) is None  # nothing known yet
+    slow.record('run', 1000, 20.0)                   # 20 ms at 1,000 bodies
+    assert slow.reason_to_skip('run', 5000) is None  # 0.5 s expected
+    assert slow.reason_to_skip('run', 10000).startswith('skipped: ~2 s per tick')
+    assert slow.reason_to_skip('other run', 10000) is None
+
+
+def test_a_skipped_row_keeps_its_name_and_says_why():
+    columns = [('scene', lambda row: row['scene']), ('ms', lambda row: row['median_ms']),
+               ('ticks', lambda row: row['ticks'])]
+    lines = report.table(columns, [{'scene': 'uniform', 'skipped': 'too slow'},
+                                   {'scene': 'uniform', 'median_ms': 1.5, 'ticks': 3}])
+    assert lines.splitlines()[2:] == ['| uniform | too slow |  |', '| uniform | 1.5 | 3 |']

@@ -88,7 +88,9 @@ class FclWorld:
 
 
 def compare_with_fcl(scene, ticks, dt, phase_names, budget_s):
-    """Ticks of python-fcl and of a World per broad phase on the same poses: one row each.
+    """Ticks of python-fcl and of a World per broad phase on the same poses.
+
+    Returns (python-fcl's numbers, one row per broad phase with both and their ratio).
 
     fcl's time is update + collide (its output is its list of contacts; turning that into
     rows for the comparison is not timed); the World's is its whole ``step``.
@@ -126,16 +128,16 @@ def compare_with_fcl(scene, ticks, dt, phase_names, budget_s):
         if time.perf_counter() - started > budget_s:
             break
     ticks_done = len(fcl_ms['update'])
-    fcl_total = np.add(fcl_ms['update'], fcl_ms['collide'])
+    fcl_median = float(np.median(np.add(fcl_ms['update'], fcl_ms['collide'])))
+    reference = {'scene': scene.name, 'bodies': n_total, 'ticks': ticks_done,
+                 'fcl_median_ms': fcl_median,
+                 'fcl_update_ms': float(np.median(fcl_ms['update'])),
+                 'fcl_collide_ms': float(np.median(fcl_ms['collide'])),
+                 'pairs_per_tick': fcl_pairs / ticks_done}
     rows = []
     for name in phase_names:
         median = float(np.median(ours[name]['ms']))
-        rows.append({
-            'scene': scene.name, 'bodies': n_total, 'broad_phase': name, 'ticks': ticks_done,
-            'median_ms': median, 'fcl_median_ms': float(np.median(fcl_total)),
-            'fcl_update_ms': float(np.median(fcl_ms['update'])),
-            'fcl_collide_ms': float(np.median(fcl_ms['collide'])),
-            'ratio': float(np.median(fcl_total)) / median,
-            'pairs_per_tick': fcl_pairs / ticks_done,
-            'only_ours': ours[name]['only_ours'], 'only_fcl': ours[name]['only_fcl']})
-    return rows
+        rows.append(dict(reference, broad_phase=name, median_ms=median,
+                         ratio=fcl_median / median, only_ours=ours[name]['only_ours'],
+                         only_fcl=ours[name]['only_fcl']))
+    return reference, rows

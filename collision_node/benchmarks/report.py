@@ -118,20 +118,16 @@ def table(columns, rows):
     lines = ['| ' + ' | '.join(header for header, _ in columns) + ' |',
              '|' + '|'.join('---' for _ in columns) + '|']
     for row in rows:
-        if 'skipped' in row or 'error' in row:
-            # Keep the identifying columns, then say why there are no numbers.
-            cells = []
-            for header, cell in columns:
-                try:
-                    cells.append(_number(cell(row)))
-                except KeyError:
-                    cells.append('')
-            note = row.get('skipped') or 'ERROR ' + row['error']
-            filled = [c for c in cells if c]
-            cells = filled + [note] + [''] * (len(columns) - len(filled) - 1)
-            lines.append('| ' + ' | '.join(cells[:len(columns)]) + ' |')
-            continue
-        lines.append('| ' + ' | '.join(_number(cell(row)) for _, cell in columns) + ' |')
+        cells = []
+        for _, cell in columns:
+            try:
+                cells.append(_number(cell(row)))
+            except KeyError:  # a skipped or failed run: no numbers
+                cells.append(None)
+        if None in cells:
+            # Say why in the first empty cell, after the columns that name the run.
+            cells[cells.index(None)] = row.get('skipped') or 'ERROR ' + row.get('error', '?')
+        lines.append('| ' + ' | '.join(cell or '' for cell in cells) + ' |')
     return '\n'.join(lines)
 
 
