@@ -1,0 +1,117 @@
+"""Per-period statistics of the node's ticks, as diagnostic_updater would report them.
+
+Plain Python and numpy (no rclpy import): the node feeds a :class:`Monitor` every tick and asks
+it once per period for a level, a message and key/value strings, which it copies into a
+diagnostic_msgs/DiagnosticStatus. Recording a tick is O(1) (one row written into a fixed ring
+buffer); the medians and percentiles are computed once per period.
+"""
+import numpy as np
+
+# diagnostic_msgs/DiagnosticStatus levels (byte values of the message's constants).
+OK, WARN, ERROR = 0, 1, 2
+STAGES = ('parse', 'broad', 'narrow', 'publish', 'total')
+TOTAL = STAGES.index('total')
+# Ticks kept per period for the median and p99; faster ticking reports them over the newest
+# this many ticks (the max is exact over the whole period). 4096 covers 1 kHz for 4 s.
+SAMPLES_PER_PERIOD = 4096
+WORLD_KEYS = ('broad_phase', 'dynamic_bodies', 'static_bodies', 'compared', 'candidate_pairs',
+              'sat_tests', 'colliding_pairs')
+
+
+class Monitor:
+    """Counts and stage timings since the last report; totals since the start."""
+
+    def __init__(self, start_s, samples=SAMPLES_PER_PERIOD):
+        """Start counting at ``start_s`` (seconds on a monotonic clock)."""
+        self._times = np.zeros((samples, len(STAGES)))  # ms, ring buffer of the period's ticks
+        self._period_max = np.zeros(len(STAGES))
+        self._last = np.zeros(len(STAGES))
+        self._period_start = start_s
+        self._ticks = 0             # this period
+        self._received = 0          # this period: input messages that arrived
+        self._rejected = 0          # this period
+        self._dropped_total = 0     # since start
+        self._rejected_total = 0    # since start
+        self._last_rejection = ''   # since start
+        self._last_valid_s = start_s
+        self._world = {key: 0 for key in WORLD_KEYS}
+        self._world['broad_phase'] = ''
+        self._world['reused_result'] = False
+
+    def received(self):
+        """Count an input message arriving (it sets the input period)."""
+        self._received += 1
+
+    def dropped(self, count=1):
+        """Count inputs that were never processed."""
+        self._dropped_total += count
+
+    def rejected(self, reason):
+        """Count an input refused for ``reason`` (no collisions were published for it)."""
+        self._rejected += 1
+        self._rejected_total += 1
+        self._last_rejection = reason
+
+    def tick(self, now_s, stage_ms, world_stats):
+        """Record a processed input: its stage times (ms, in STAGES order) and World stats."""
+        row = self._ticks % len(self._times)
+        self._times[row] = stage_ms
+        self._last[:] = stage_ms
+        np.maximum(self._period_max, self._last, out=self._period_max)
+        self._ticks += 1
+        self._last_valid_s = now_s
+        for key in WORLD_KEYS:
+            self._world[key] = world_stats[key]
+        self._world['reused_result'] = world_stats.get('reused', False)
+
+    def report(self, now_s, input_timeout_s, tick_period_s=0.0):
+        """Return (level, message, [(key, value)]) for the period ending now, then reset it.
+
+        ``tick_period_s`` is the timer period when a timer ticks (0: ticks follow the inputs,
+        whose period is measured). ``input_timeout_s`` 0 disables the ERROR level.
+        """
+        elapsed = max(now_s - self._period_start, 1e-9)
+        input_period = tick_period_s or (elapsed / self._received if self._received else 0.0)
+        count = min(self._ticks, len(self._times))
+        times = self._times[:count]
+        if count:  # 'higher': a reported percentile is always a time some tick really took
+            median, p99 = np.percentile(times, (50.0, 99.0), axis=0, method='higher')
+        else:
+            median = p99 = np.zeros(len(STAGES))
+        values = [(key, _text(value)) for key, value in self._world.items()]
+        for stage, name in enumerate(STAGES):
+            values += [('%s_ms_last' % name, _ms(self._last[stage])),
+                       ('%s_ms_median' % name, _ms(median[stage])),
+                       ('%s_ms_p99' % name, _ms(p99[stage])),
+                       ('%s_ms_max' % name, _ms(self._period_max[stage]))]
+        values += [('ticks', str(self._ticks)), ('rate_hz', '%.3f' % (self._ticks / elapsed)),
+                   ('input_period_ms', _ms(1e3 * input_period)),
+                   ('dropped_inputs', str(self._dropped_total)),
+                   ('rejected_inputs', str(self._rejected_total)),
+                   ('last_rejection', self._last_rejection)]
+
+        silent_s = now_s - self._last_valid_s
+        slowest_ms = self._period_max[TOTAL]
+        if input_timeout_s > 0.0 and silent_s >= input_timeout_s:
+            level, message = ERROR, 'no valid input for %.3g s' % silent_s
+        elif self._rejected:
+            level = WARN
+            message = '%d inputs rejected, last: %s' % (self._rejected, self._last_rejection)
+        elif self._ticks and input_period and slowest_ms > 1e3 * input_period:
+            level, message = WARN, 'a tick took %.3g ms, longer than the input period %.3g ms' \
+                % (slowest_ms, 1e3 * input_period)
+        else:
+            level, message = OK, '%d ticks at %.1f Hz' % (self._ticks, self._ticks / elapsed)
+
+        self._period_start = now_s
+        self._ticks = self._received = self._rejected = 0
+        self._period_max[:] = 0.0
+        return level, message, values
+
+
+def _ms(value):
+    return '%.3f' % value
+
+
+def _text(value):
+    return str(value).lower() if isinstance(value, bool) else str(value)

@@ -1,0 +1,331 @@
+"""The collision_node ROS 2 node: dynamic poses in, colliding pairs out (DESIGN §3).
+
+A thin layer over :class:`collision_node.world.World`: it reads the PoseArray as raw CDR bytes
+(numpy, no per-pose Python), checks the input against the parameters, steps the World and
+writes the `collisions` cloud as raw CDR bytes too. Everything geometric lives in the World.
+
+Ticks. ``tick_rate_hz`` 0: each input is checked in the subscription callback. ``> 0``: the
+callback only keeps the newest input and a timer checks it; a timer tick without a new input
+does nothing (re-publishing the last answer would repeat an old stamp as if it were news).
+
+``dropped_inputs`` counts inputs the node never checked: in timer mode those replaced by a
+newer one before the timer came; in both modes, the gaps in the publisher's sequence numbers
+(DDS message info), i.e. messages overwritten in the depth-1 queue while a tick ran or lost on
+the way. Gaps are only counted while exactly one publisher is matched, because the message
+info does not say which publisher a sequence number belongs to.
+
+JIT. The kernels are compiled (or loaded from numba's cache) by a warm-up before the
+subscription exists, so no tick ever compiles. numba caches next to the sources when that
+directory is writable and otherwise in its user-wide cache (~/.cache/numba); NUMBA_CACHE_DIR
+overrides both. The node leaves that choice to numba: the variable must be set before numba is
+imported, which is the launching environment's business, not the node's.
+"""
+import math
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseArray
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker, MarkerArray
+
+from collision_node import diagnostics, params, scenes
+from collision_node.broadphase import NAMES
+from collision_node.cdr import CdrError, parse_pose_array
+from collision_node.messages import serialize_collisions
+from collision_node.world import DYNAMIC, World
+
+# Newest input wins (DESIGN §3); reliable, because Fast DDS delivers nothing best-effort once a
+# PoseArray passes ~512 KB. Overridable through the qos_overrides.* parameters.
+INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+# RViz draws at most ~30 frames/s, so faster markers are never seen; and a MarkerArray costs
+# rclpy ~15 µs per marker to convert, a tick's worth of time at a few thousand bodies.
+MARKER_PERIOD_S = 1.0 / 30.0
+STATIC_COLOR = ColorRGBA(r=0.6, g=0.6, b=0.6, a=0.5)
+FREE_COLOR = ColorRGBA(r=0.2, g=0.8, b=0.2, a=0.6)
+COLLIDING_COLOR = ColorRGBA(r=0.9, g=0.1, b=0.1, a=0.8)
+NORMAL_COLOR = ColorRGBA(r=1.0, g=0.9, b=0.0, a=1.0)
+NORMAL_ARROW_MIN_LENGTH = 0.05  # m; an arrow is max(depth, this) long, so shallow ones show
+NORMAL_ARROW_WIDTH = 0.01       # m, shaft diameter; the head is twice as wide
+# Sequence number 0 means the rmw does not report publication sequence numbers.
+SEQUENCE_UNSUPPORTED = 0
+WARM_UP_BODIES = 64  # half static: enough for every broad phase to run its full code path
+LOG_THROTTLE_S = 5.0
+
+
+class InputError(ValueError):
+    """An input message the node refuses; the text is the reason in the diagnostics."""
+
+
+class CollisionNode(Node):
+    """Checks the dynamic boxes of each PoseArray against each other and the static colliders."""
+
+    def __init__(self, **kwargs):
+        super().__init__('collision_node', **kwargs)
+        self._config = params.declare(self)
+        config = self._config
+        self._world = World(config.broad_phase, config.sphere_prefilter,
+                            config.octree_max_depth, config.octree_leaf_cooldown_ticks)
+        self._world.set_static(*config.static_scene())
+        # Parameter changes may come from another thread (Node.set_parameters); ticks run on
+        # the executor's. The lock keeps a World change from landing in the middle of a step.
+        self._world_lock = threading.Lock()
+
+        start = time.perf_counter()
+        warm_up()
+        self.get_logger().info('JIT warm-up of %d broad phases took %.2f s'
+                               % (len(NAMES), time.perf_counter() - start))
+
+        self._monitor = diagnostics.Monitor(time.monotonic())
+        self._collisions_publisher = self.create_publisher(PointCloud2, 'collisions', OUTPUT_QOS)
+        self._markers_publisher = self.create_publisher(MarkerArray, '~/markers', OUTPUT_QOS)
+        self._diagnostics_publisher = self.create_publisher(
+            DiagnosticArray, '/diagnostics', OUTPUT_QOS)
+        self._marker_pool = []  # Marker objects reused between ticks: cheaper than new ones
+        self._last_markers_s = -math.inf
+        self._last_sequence = None
+        self._pending = None  # newest unchecked input, in timer mode
+
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.create_timer(config.diagnostic_period_s, self._publish_diagnostics)
+        if config.tick_rate_hz > 0.0:
+            self.create_timer(1.0 / config.tick_rate_hz, self._on_tick_timer)
+        # Last, after the warm-up: no input is taken before the node can answer it in time.
+        self._subscription = self.create_subscription(
+            PoseArray, 'dynamic_poses', self._on_input, INPUT_QOS, raw=True,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self.get_logger().info(
+            '%d static colliders (%d enabled), broad phase %s, %s' % (
+                len(config.colliders), self._world.static_count, config.broad_phase,
+                'tick on every input' if not config.tick_rate_hz
+                else 'tick at %g Hz' % config.tick_rate_hz))
+
+    def _on_input(self, buffer, info):
+        self._monitor.received()
+        self._count_sequence_gap(info.get('publication_sequence_number'))
+        if self._config.tick_rate_hz > 0.0:
+            if self._pending is not None:
+                self._monitor.dropped()
+            self._pending = buffer
+        else:
+            self._check(buffer)
+
+    def _on_tick_timer(self):
+        buffer, self._pending = self._pending, None
+        if buffer is not None:
+            self._check(buffer)
+
+    def _count_sequence_gap(self, sequence):
+        if sequence in (None, SEQUENCE_UNSUPPORTED):
+            return
+        previous, self._last_sequence = self._last_sequence, sequence
+        # A smaller number is another (or a restarted) publisher: start counting from it.
+        if previous is not None and sequence > previous + 1 \
+                and self._subscription.get_publisher_count() == 1:
+            self._monitor.dropped(sequence - previous - 1)
+
+    def _check(self, buffer):
+        """Collide one input and publish the answer; a refused input publishes nothing."""
+        config = self._config
+        start = time.perf_counter()
+        try:
+            message = parse_pose_array(buffer)
+            self._check_input(message, config)
+            checked = time.perf_counter()
+            with self._world_lock:
+                result = self._world.step(message.poses, config.dynamic_half_extents)
+        except (CdrError, InputError) as error:
+            self._reject(str(error))
+            return
+        except ValueError as error:
+            # The World names the first invalid body. The whole message is refused rather than
+            # that body left out: a partial answer would silently report it as free.
+            self._reject('dynamic %s' % error)
+            return
+        stepped = time.perf_counter()
+
+        self._collisions_publisher.publish(serialize_collisions(
+            result.contacts, message.sec, message.nanosec, config.frame_id))
+        now = time.monotonic()
+        if self._markers_publisher.get_subscription_count() > 0 \
+                and now - self._last_markers_s >= MARKER_PERIOD_S:
+            self._last_markers_s = now
+            self._publish_markers(message, config, result.contacts)
+        done = time.perf_counter()
+
+        stats = result.stats
+        if stats['reused']:  # the World answered from its last result: no phase ran
+            parse_ms, broad_ms, narrow_ms = 1e3 * (stepped - start), 0.0, 0.0
+        else:
+            parse_ms = 1e3 * (checked - start) + stats['prepare_ms']
+            broad_ms, narrow_ms = stats['broad_ms'], stats['narrow_ms']
+        self._monitor.tick(now, (parse_ms, broad_ms, narrow_ms, 1e3 * (done - stepped),
+                                 1e3 * (done - start)), stats)
+
+    @staticmethod
+    def _check_input(message, config):
+        if message.frame_id and message.frame_id != config.frame_id:
+            raise InputError("input frame_id '%s' is not the node's frame_id '%s'"
+                             % (message.frame_id, config.frame_id))
+        count = len(message.poses)
+        if count > config.max_bodies:
+            raise InputError('%d poses exceed max_bodies %d' % (count, config.max_bodies))
+        extents = config.dynamic_half_extents
+        if extents.ndim == 2 and len(extents) != count:
+            raise InputError('dynamic.half_extents sizes %d bodies, the input has %d poses'
+                             % (len(extents), count))
+
+    def _reject(self, reason):
+        self._monitor.rejected(reason)
+        self.get_logger().warn('input rejected: %s' % reason,
+                               throttle_duration_sec=LOG_THROTTLE_S)
+
+    def _publish_markers(self, message, config, contacts):
+        """DELETEALL, a cube per body (static, free, colliding), an arrow per contact normal."""
+        header = Header(frame_id=config.frame_id)
+        header.stamp.sec, header.stamp.nanosec = message.sec, message.nanosec
+        poses = message.poses
+        extents = np.broadcast_to(config.dynamic_half_extents, (len(poses), 3))
+        colliding = np.zeros(len(poses), bool)
+        colliding[contacts['id_a']] = True
+        colliding[contacts['id_b'][contacts['type_b'] == DYNAMIC]] = True
+        static_poses, static_extents, static_ids = config.static_scene()
+        normals = np.stack([contacts['normal_x'], contacts['normal_y'], contacts['normal_z']], 1)
+        arrows = np.empty((len(contacts), 7))
+        arrows[:, 0], arrows[:, 1], arrows[:, 2] = contacts['x'], contacts['y'], contacts['z']
+        arrows[:, 3:] = _quaternions_turning_x_to(normals)
+        arrow_scales = np.empty((len(contacts), 3))
+        arrow_scales[:, 0] = np.maximum(contacts['depth'], NORMAL_ARROW_MIN_LENGTH)
+        arrow_scales[:, 1:] = (NORMAL_ARROW_WIDTH, 2.0 * NORMAL_ARROW_WIDTH)
+
+        groups = (  # namespace, marker type, ids, poses, scales (full sizes), colours
+            ('static', Marker.CUBE, static_ids, static_poses, 2.0 * static_extents,
+             [STATIC_COLOR] * len(static_ids)),
+            ('dynamic', Marker.CUBE, range(len(poses)), poses, 2.0 * extents,
+             [COLLIDING_COLOR if hit else FREE_COLOR for hit in colliding.tolist()]),
+            ('normals', Marker.ARROW, range(len(contacts)), arrows, arrow_scales,
+             [NORMAL_COLOR] * len(contacts)),
+        )
+        total = sum(len(group[2]) for group in groups)
+        self._marker_pool.extend(Marker() for _ in range(total - len(self._marker_pool)))
+        markers = [Marker(header=header, action=Marker.DELETEALL)]
+        pool = iter(self._marker_pool)
+        for namespace, marker_type, ids, group_poses, scales, colors in groups:
+            for marker_id, pose, scale, color in zip(
+                    ids, group_poses.tolist(), scales.tolist(), colors):
+                marker = next(pool)
+                marker.header, marker.ns, marker.id, marker.type = \
+                    header, namespace, int(marker_id), marker_type
+                position, orientation = marker.pose.position, marker.pose.orientation
+                position.x, position.y, position.z = pose[:3]
+                orientation.x, orientation.y, orientation.z, orientation.w = pose[3:]
+                marker.scale.x, marker.scale.y, marker.scale.z = scale
+                marker.color = color
+                markers.append(marker)
+        self._markers_publisher.publish(MarkerArray(markers=markers))
+
+    def _on_set_parameters(self, changes):
+        """Apply run-time changes on the next tick; refuse invalid ones with the reason."""
+        changed = self._config
+        try:
+            for change in changes:
+                changed = params.run_time_change(changed, change.name, change.value)
+        except params.ParameterError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        old = self._config
+        with self._world_lock:
+            try:
+                self._world.configure(
+                    broad_phase=changed.broad_phase, octree_max_depth=changed.octree_max_depth,
+                    octree_leaf_cooldown_ticks=changed.octree_leaf_cooldown_ticks)
+            except ValueError as error:
+                return SetParametersResult(successful=False, reason=str(error))
+            if changed.sphere_prefilter != old.sphere_prefilter:
+                self._world.sphere_prefilter = changed.sphere_prefilter
+            if [c.enabled for c in changed.colliders] != [c.enabled for c in old.colliders]:
+                self._world.set_static(*changed.static_scene())
+            self._config = changed
+        return SetParametersResult(successful=True)
+
+    def _publish_diagnostics(self):
+        config = self._config
+        level, message, values = self._monitor.report(
+            time.monotonic(), config.input_timeout_s,
+            1.0 / config.tick_rate_hz if config.tick_rate_hz else 0.0)
+        status = DiagnosticStatus(
+            level=bytes([level]), name='%s: collision_check' % self.get_name(), message=message,
+            hardware_id='none', values=[KeyValue(key=key, value=value) for key, value in values])
+        self._diagnostics_publisher.publish(DiagnosticArray(
+            header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+
+
+def warm_up():
+    """Run every broad phase and the SAT on a small scene, so that no tick compiles."""
+    scene = scenes.uniform(WARM_UP_BODIES, seed=1)
+    poses = scene.dynamic_poses(0.0)
+    for name in NAMES:
+        for statics in (True, False):
+            world = World(broad_phase=name)
+            if statics:
+                world.set_static(scene.static_poses, scene.static_half_extents)
+            for sphere_prefilter in (True, False):
+                world.sphere_prefilter = sphere_prefilter
+                world.step(poses, scene.dynamic_half_extents)    # one size per body
+                world.step(poses, scene.dynamic_half_extents[0])  # one size for all
+
+
+def _quaternions_turning_x_to(directions):
+    """Return the shortest rotations (N, 4) x y z w from +x to the unit ``directions``.
+
+    An ARROW marker points along its pose's x axis.
+    """
+    # Half-way formula: q = (x × d, 1 + x·d), normalised; it vanishes for d = -x, where any
+    # half-turn about an axis normal to x does (z here).
+    turns = np.zeros((len(directions), 4))
+    turns[:, 1] = -directions[:, 2]
+    turns[:, 2] = directions[:, 1]
+    turns[:, 3] = 1.0 + directions[:, 0]
+    norms = np.linalg.norm(turns, axis=1)
+    opposite = norms < 1e-9
+    turns[opposite] = (0.0, 0.0, 1.0, 0.0)
+    norms[opposite] = 1.0
+    return turns / norms[:, None]
+
+
+def main(args=None):
+    """Run the node until shutdown; exit with status 2 on a bad parameter."""
+    try:
+        rclpy.init(args=args)
+    except RuntimeError as error:  # e.g. a params file rcl cannot parse
+        rclpy.logging.get_logger('collision_node').fatal(str(error))
+        raise SystemExit(2) from None
+    node = None
+    try:
+        node = CollisionNode()
+        rclpy.spin(node)
+    except params.ParameterError as error:
+        rclpy.logging.get_logger('collision_node').fatal(str(error))
+        raise SystemExit(2) from None
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,331 @@
+"""The node's parameters (DESIGN §3): the table, their validation and their declaration.
+
+Validation is plain Python on plain values, so tests call it without ROS:
+
+    params = parse({'frame_id': 'world', 'static_colliders': ['table'],
+                    'table.pose': [0, 0, 0.4, 0, 0, 0, 1], 'table.half_extents': [0.6, 0.4, 0.02]})
+
+:func:`declare` is the rclpy side: it declares every parameter on a node with its type and reads
+them back through :func:`parse`. Every problem raises :class:`ParameterError`, whose text names
+the parameter and says what is wrong with it.
+"""
+import math
+import re
+from typing import NamedTuple
+
+import numpy as np
+
+from collision_node.obb import QUATERNION_NORM_TOLERANCE
+from collision_node.world import World
+
+# Type names as in the DESIGN table; declare() maps them to rclpy's Parameter.Type.
+STRING, BOOL, INTEGER, DOUBLE = 'string', 'bool', 'integer', 'double'
+DOUBLE_ARRAY, STRING_ARRAY = 'double[]', 'string[]'
+
+
+class Spec(NamedTuple):
+    """One row of the parameter table."""
+
+    type: str
+    default: object
+    description: str
+    run_time: bool = False  # may change while the node runs; all others are read-only
+
+
+PARAMETERS = {
+    'frame_id': Spec(STRING, 'world', 'frame of all poses; inputs in another frame are rejected'),
+    'broad_phase': Spec(STRING, 'auto', 'brute_force, sphere, octree, ... or auto', True),
+    'sphere_prefilter': Spec(BOOL, True, 'bounding-sphere test before the SAT', True),
+    'octree.max_depth': Spec(INTEGER, 0, '0: chosen from the body count; else a fixed depth',
+                             True),
+    'octree.leaf_cooldown_ticks': Spec(INTEGER, 15,
+                                       'ticks an emptied leaf lives before it is dropped', True),
+    'dynamic.half_extents': Spec(DOUBLE_ARRAY, [0.5, 0.5, 0.5],
+                                 'm; 3 values for every dynamic body, or 3 per body'),
+    'static_colliders': Spec(STRING_ARRAY, [], 'names of the static boxes, each with a block '
+                                               '<name>.pose, <name>.half_extents, <name>.enabled'),
+    'tick_rate_hz': Spec(DOUBLE, 0.0, '0: check every input message; > 0: a timer checks the '
+                                      'newest input at this rate'),
+    'input_timeout_s': Spec(DOUBLE, 1.0, 'no valid input for this long: ERROR diagnostic; '
+                                         '0 disables'),
+    'max_bodies': Spec(INTEGER, 100000, 'inputs with more poses are rejected'),
+    'diagnostic_updater.period': Spec(DOUBLE, 1.0, 's between /diagnostics messages'),
+}
+COLLIDER_PARAMETERS = {  # <name>.<key>; pose and half_extents have no default: they must be given
+    'pose': Spec(DOUBLE_ARRAY, None, 'x y z qx qy qz qw, in frame_id'),
+    'half_extents': Spec(DOUBLE_ARRAY, None, 'm, 3 values'),
+    'enabled': Spec(BOOL, True, 'a disabled collider is left out of the checks', True),
+}
+# A collider name becomes the first part of parameter names, so it must be a plain identifier
+# and must not collide with the node's own parameter groups.
+COLLIDER_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
+RESERVED_NAMES = frozenset(name.split('.')[0] for name in PARAMETERS) | {
+    'qos_overrides', 'use_sim_time', 'start_type_description_service'}
+# A timer faster than this only burns CPU in rclpy's executor (each wake-up costs ~50 µs of
+# Python), and no pose source publishes that fast.
+MAX_TICK_RATE_HZ = 1000.0
+POSE_SIZE = 7
+WORLD_SETTINGS = {  # parameter name: World keyword; the World judges these values itself
+    'broad_phase': 'broad_phase',
+    'octree.max_depth': 'octree_max_depth',
+    'octree.leaf_cooldown_ticks': 'octree_leaf_cooldown_ticks',
+}
+
+
+class ParameterError(ValueError):
+    """A parameter value the node cannot run with; ``name`` is the parameter's name."""
+
+    def __init__(self, name, problem):
+        super().__init__("parameter '%s': %s" % (name, problem))
+        self.name = name
+
+
+class Collider(NamedTuple):
+    """A static box from the parameters; its id in the `collisions` cloud is its list index."""
+
+    name: str
+    pose: np.ndarray          # (7,) x y z qx qy qz qw
+    half_extents: np.ndarray  # (3,)
+    enabled: bool
+
+
+class Parameters(NamedTuple):
+    """All parameters of the node, validated."""
+
+    frame_id: str
+    broad_phase: str
+    sphere_prefilter: bool
+    octree_max_depth: int
+    octree_leaf_cooldown_ticks: int
+    dynamic_half_extents: np.ndarray  # (3,) for every body, or (N, 3) one row per body
+    colliders: tuple                  # of Collider, in the order of static_colliders
+    tick_rate_hz: float
+    input_timeout_s: float
+    max_bodies: int
+    diagnostic_period_s: float
+
+    def static_scene(self):
+        """Poses (S, 7), half extents (S, 3) and list indices of the enabled colliders."""
+        enabled = [i for i, collider in enumerate(self.colliders) if collider.enabled]
+        poses = np.array([self.colliders[i].pose for i in enabled]).reshape(-1, POSE_SIZE)
+        extents = np.array([self.colliders[i].half_extents for i in enabled]).reshape(-1, 3)
+        return poses, extents, np.array(enabled, dtype=np.int64)
+
+
+def collider_parameter_names(name):
+    """Names of the parameters of the collider called ``name``."""
+    return ['%s.%s' % (name, key) for key in COLLIDER_PARAMETERS]
+
+
+def parse(values):
+    """Validate parameter values (a mapping name -> value; missing or None: default).
+
+    Returns :class:`Parameters`; raises ParameterError naming the first bad parameter.
+    """
+    def get(name, spec):
+        value = values.get(name)
+        return spec.default if value is None else value
+
+    read = {name: _checked(name, spec.type, get(name, spec)) for name, spec in PARAMETERS.items()}
+    for name in WORLD_SETTINGS:
+        check_world_setting(name, read[name])
+    names = read['static_colliders']
+    colliders = []
+    for index, name in enumerate(names):
+        _check_collider_name(names, index)
+        pose, extents, enabled = (  # a missing pose or size stays None: _pose() says so
+            _checked_or_none('%s.%s' % (name, key), spec.type, get('%s.%s' % (name, key), spec))
+            for key, spec in COLLIDER_PARAMETERS.items())
+        colliders.append(Collider(name, _pose('%s.pose' % name, pose),
+                                  _half_extents('%s.half_extents' % name, extents, single=True),
+                                  enabled))
+    return Parameters(
+        frame_id=_frame_id(read['frame_id']),
+        broad_phase=read['broad_phase'],
+        sphere_prefilter=read['sphere_prefilter'],
+        octree_max_depth=read['octree.max_depth'],
+        octree_leaf_cooldown_ticks=read['octree.leaf_cooldown_ticks'],
+        dynamic_half_extents=_half_extents('dynamic.half_extents',
+                                           read['dynamic.half_extents'], single=False),
+        colliders=tuple(colliders),
+        tick_rate_hz=_in_range('tick_rate_hz', read['tick_rate_hz'], 0.0, MAX_TICK_RATE_HZ),
+        input_timeout_s=_in_range('input_timeout_s', read['input_timeout_s'], 0.0, math.inf),
+        max_bodies=_in_range('max_bodies', read['max_bodies'], 1, 2**32 - 1),
+        diagnostic_period_s=_positive('diagnostic_updater.period',
+                                      read['diagnostic_updater.period']))
+
+
+def check_world_setting(name, value):
+    """Raise ParameterError unless ``World`` accepts ``value`` for the parameter ``name``."""
+    try:
+        World(**{WORLD_SETTINGS[name]: value})
+    except ValueError as error:
+        raise ParameterError(name, str(error)) from None
+
+
+def run_time_change(parameters, name, value):
+    """Return ``parameters`` with one run-time parameter changed; ParameterError if refused.
+
+    Only the parameters marked run-time in the table can change: the colliders' list, their
+    geometry and the node's wiring are fixed at start. Names outside the table leave
+    ``parameters`` as they are.
+    """
+    collider, _, key = name.rpartition('.')
+    names = [c.name for c in parameters.colliders]
+    if collider in names and key in COLLIDER_PARAMETERS:
+        if not COLLIDER_PARAMETERS[key].run_time:
+            raise ParameterError(name, 'fixed at start; only %s.enabled can change' % collider)
+        index = names.index(collider)
+        enabled = _checked(name, BOOL, value)
+        colliders = list(parameters.colliders)
+        colliders[index] = colliders[index]._replace(enabled=enabled)
+        return parameters._replace(colliders=tuple(colliders))
+    spec = PARAMETERS.get(name)
+    if spec is None:  # not in the table (use_sim_time, qos_overrides.*): rclpy's business
+        return parameters
+    if not spec.run_time:
+        raise ParameterError(name, 'fixed at start; restart the node to change it')
+    value = _checked(name, spec.type, value)
+    if name in WORLD_SETTINGS:
+        check_world_setting(name, value)
+    field = name.replace('.', '_')
+    return parameters._replace(**{field: value})
+
+
+def declare(node):
+    """Declare every parameter on ``node`` with its type and return them parsed.
+
+    Start-only parameters are declared read-only, so rclpy refuses to change them later.
+    Raises ParameterError.
+    """
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.exceptions import InvalidParameterTypeException
+    from rclpy.parameter import Parameter
+
+    types = {STRING: Parameter.Type.STRING, BOOL: Parameter.Type.BOOL,
+             INTEGER: Parameter.Type.INTEGER, DOUBLE: Parameter.Type.DOUBLE,
+             DOUBLE_ARRAY: Parameter.Type.DOUBLE_ARRAY,
+             STRING_ARRAY: Parameter.Type.STRING_ARRAY}
+
+    def declare_one(name, spec):
+        descriptor = ParameterDescriptor(description=spec.description, read_only=not spec.run_time)
+        # An empty list has no type in rclpy (a [] default reads as a byte array, an empty YAML
+        # list arrives NOT_SET), so a parameter whose default is missing or empty is declared by
+        # type alone and reads None until given; parse() then applies the table's default.
+        default = spec.default if spec.default not in (None, []) else types[spec.type]
+        try:
+            value = node.declare_parameter(name, default, descriptor).value
+        except InvalidParameterTypeException as error:
+            hint = ' (write 1.0, not 1)' if spec.type.startswith(DOUBLE) else ''
+            raise ParameterError(name, 'must be of type %s%s: %s' % (spec.type, hint, error)) \
+                from None
+        return None if value is None else _plain(value)
+
+    values = {name: declare_one(name, spec) for name, spec in PARAMETERS.items()}
+    # Collider blocks can only be declared once their names are known (nav2's pattern).
+    names = _checked('static_colliders', STRING_ARRAY, values['static_colliders'] or [])
+    for index in range(len(names)):
+        _check_collider_name(names, index)
+        for key, spec in COLLIDER_PARAMETERS.items():
+            name = '%s.%s' % (names[index], key)
+            values[name] = declare_one(name, spec)
+    return parse(values)
+
+
+def _plain(value):
+    """Turn the array.array or numpy arrays of rclpy into lists."""
+    return value if isinstance(value, (str, bool, int, float)) else list(value)
+
+
+def _checked(name, type_name, value):
+    """Check ``value`` against a table type; int is accepted where a double is expected."""
+    def is_number(item):
+        return isinstance(item, (int, float, np.integer, np.floating)) \
+            and not isinstance(item, (bool, np.bool_))
+
+    if type_name == STRING and isinstance(value, str):
+        return value
+    if type_name == BOOL and isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if type_name == INTEGER and is_number(value) and float(value).is_integer():
+        return int(value)
+    if type_name == DOUBLE and is_number(value):
+        return float(value)
+    if not isinstance(value, (str, bytes, dict)):
+        try:
+            items = list(value)
+        except TypeError:
+            items = None
+        if type_name == STRING_ARRAY and items is not None \
+                and all(isinstance(item, str) for item in items):
+            return items
+        if type_name == DOUBLE_ARRAY and items is not None and all(map(is_number, items)):
+            return [float(item) for item in items]
+    raise ParameterError(name, 'must be of type %s, got %r' % (type_name, value))
+
+
+def _checked_or_none(name, type_name, value):
+    return None if value is None else _checked(name, type_name, value)
+
+
+def _frame_id(value):
+    if not value or '\x00' in value:
+        raise ParameterError('frame_id', 'must name the frame of the poses (e.g. world), got %r'
+                             % value)
+    return value
+
+
+def _in_range(name, value, low, high):
+    if not low <= value <= high:  # also refuses NaN
+        raise ParameterError(name, 'must be in [%s, %s], got %r' % (low, high, value))
+    return value
+
+
+def _positive(name, value):
+    if not 0.0 < value < math.inf:
+        raise ParameterError(name, 'must be a positive number of seconds, got %r' % value)
+    return value
+
+
+def _pose(name, values):
+    if values is None:
+        raise ParameterError(name, 'missing; give x y z qx qy qz qw')
+    if len(values) != POSE_SIZE:
+        raise ParameterError(name, 'needs 7 values x y z qx qy qz qw, got %d' % len(values))
+    pose = np.array(values, dtype=np.float64)
+    if not np.all(np.isfinite(pose)):
+        raise ParameterError(name, 'has a NaN or infinite value: %s' % values)
+    norm = float(np.linalg.norm(pose[3:]))
+    if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
+        raise ParameterError(name, 'quaternion qx qy qz qw = %s has norm %.6g; it must be a '
+                                   'unit quaternion (norm within %g of 1)'
+                             % (values[3:], norm, QUATERNION_NORM_TOLERANCE))
+    return pose
+
+
+def _half_extents(name, values, single):
+    if values is None:
+        raise ParameterError(name, 'missing; give 3 half extents in metres')
+    if single and len(values) != 3:
+        raise ParameterError(name, 'needs 3 values, got %d' % len(values))
+    if len(values) == 0 or len(values) % 3:
+        raise ParameterError(name, 'needs 3 values (one size for all dynamic bodies) or 3 per '
+                                   'body, got %d' % len(values))
+    extents = np.array(values, dtype=np.float64)
+    bad = np.flatnonzero(~(np.isfinite(extents) & (extents >= 0.0)))
+    if len(bad):
+        raise ParameterError(name, 'value %d is %r; half extents must be finite and >= 0'
+                             % (bad[0], values[bad[0]]))
+    return extents if len(extents) == 3 else extents.reshape(-1, 3)
+
+
+def _check_collider_name(names, index):
+    name = names[index]
+    if not COLLIDER_NAME.match(name):
+        raise ParameterError('static_colliders', 'name %r must start with a letter and hold '
+                                                 'only letters, digits and _' % name)
+    if name in RESERVED_NAMES:
+        raise ParameterError('static_colliders', "name %r is taken by the node's own "
+                                                 'parameters; choose another' % name)
+    if name in names[:index]:
+        raise ParameterError('static_colliders', 'name %r appears twice' % name)

@@ -1,0 +1,160 @@
+"""The per-period tick statistics behind /diagnostics, without ROS."""
+import math
+import pathlib
+import subprocess
+import sys
+
+from diagnostic_msgs.msg import DiagnosticStatus
+import numpy as np
+import pytest
+
+from collision_node.diagnostics import ERROR, Monitor, OK, STAGES, WARN
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+WORLD_STATS = {'broad_phase': 'sphere', 'dynamic_bodies': 5, 'static_bodies': 2, 'compared': 17,
+               'candidate_pairs': 4, 'sat_tests': 3, 'colliding_pairs': 2, 'reused': False}
+REQUIRED_KEYS = ['broad_phase', 'dynamic_bodies', 'static_bodies', 'candidate_pairs',
+                 'sat_tests', 'colliding_pairs', 'compared', 'ticks', 'rate_hz',
+                 'dropped_inputs', 'rejected_inputs', 'last_rejection'] + [
+    '%s_ms_%s' % (stage, statistic) for stage in ('parse', 'broad', 'narrow', 'publish', 'total')
+    for statistic in ('last', 'median', 'p99', 'max')]
+
+
+def nearest_rank(values, fraction):
+    """The conservative percentile: the smallest sample at or above the fraction's rank."""
+    ordered = sorted(values)
+    return ordered[math.ceil(fraction * (len(ordered) - 1))]
+
+
+def test_levels_are_the_message_constants():
+    assert bytes([OK]) == DiagnosticStatus.OK
+    assert bytes([WARN]) == DiagnosticStatus.WARN
+    assert bytes([ERROR]) == DiagnosticStatus.ERROR
+
+
+def test_report_has_every_key_and_the_world_stats():
+    monitor = Monitor(0.0)
+    monitor.received()
+    monitor.tick(0.5, [1.0, 2.0, 3.0, 4.0, 10.0], WORLD_STATS)
+    level, message, values = monitor.report(1.0, input_timeout_s=5.0)
+    values = dict(values)
+    assert set(REQUIRED_KEYS) <= set(values)
+    assert level == OK, message
+    assert values['broad_phase'] == 'sphere'
+    assert (values['dynamic_bodies'], values['static_bodies'], values['compared'],
+            values['candidate_pairs'], values['sat_tests'], values['colliding_pairs']) == (
+        '5', '2', '17', '4', '3', '2')
+    assert values['ticks'] == '1' and float(values['rate_hz']) == 1.0
+    assert values['reused_result'] == 'false'
+    assert float(values['narrow_ms_last']) == 3.0 and float(values['total_ms_max']) == 10.0
+
+
+def test_stage_statistics_over_the_period():
+    rng = np.random.default_rng(3)
+    times = rng.exponential(2.0, (300, len(STAGES)))
+    monitor = Monitor(0.0)
+    for row in times:
+        monitor.received()
+        monitor.tick(1.0, row, WORLD_STATS)
+    values = dict(monitor.report(10.0, input_timeout_s=0.0)[2])
+    for column, stage in enumerate(STAGES):
+        samples = times[:, column].tolist()
+        assert float(values['%s_ms_last' % stage]) == pytest.approx(samples[-1], abs=1e-3)
+        assert float(values['%s_ms_median' % stage]) == pytest.approx(
+            nearest_rank(samples, 0.5), abs=1e-3)
+        assert float(values['%s_ms_p99' % stage]) == pytest.approx(
+            nearest_rank(samples, 0.99), abs=1e-3)
+        assert float(values['%s_ms_max' % stage]) == pytest.approx(max(samples), abs=1e-3)
+    assert values['ticks'] == '300' and float(values['rate_hz']) == 30.0
+
+
+def test_more_ticks_than_samples_keeps_the_newest_and_the_true_max():
+    monitor = Monitor(0.0, samples=8)
+    totals = [100.0] + [float(i) for i in range(1, 20)]  # the slow one is pushed out
+    for total in totals:
+        monitor.tick(0.0, [0.0, 0.0, 0.0, 0.0, total], WORLD_STATS)
+    values = dict(monitor.report(1.0, input_timeout_s=0.0)[2])
+    newest = totals[-8:]
+    assert float(values['total_ms_median']) == nearest_rank(newest, 0.5)
+    assert float(values['total_ms_p99']) == max(newest)
+    assert float(values['total_ms_max']) == 100.0
+    assert values['ticks'] == '20'
+
+
+def test_a_new_period_starts_after_each_report():
+    monitor = Monitor(0.0)
+    monitor.tick(0.1, [5.0] * len(STAGES), WORLD_STATS)
+    monitor.report(1.0, input_timeout_s=0.0)
+    values = dict(monitor.report(2.0, input_timeout_s=0.0)[2])
+    assert values['ticks'] == '0' and float(values['total_ms_max']) == 0.0
+    assert float(values['total_ms_last']) == 5.0  # the last tick stays visible
+    assert values['dynamic_bodies'] == '5'
+
+
+def test_rejection_warns_for_one_period_and_is_remembered():
+    monitor = Monitor(0.0)
+    monitor.rejected('input frame_id map is not world')
+    monitor.tick(0.5, [1.0] * len(STAGES), WORLD_STATS)
+    level, message, values = monitor.report(1.0, input_timeout_s=5.0)
+    assert level == WARN and 'frame_id map' in message
+    assert dict(values)['rejected_inputs'] == '1'
+    monitor.tick(1.5, [1.0] * len(STAGES), WORLD_STATS)
+    level, _, values = monitor.report(2.0, input_timeout_s=5.0)
+    assert level == OK
+    assert dict(values)['rejected_inputs'] == '1'  # a total since the start
+    assert dict(values)['last_rejection'] == 'input frame_id map is not world'
+
+
+def test_tick_slower_than_the_input_period_warns():
+    monitor = Monitor(0.0)
+    for _ in range(10):  # 10 inputs in 1 s: a 100 ms input period
+        monitor.received()
+        monitor.tick(0.9, [0.0, 0.0, 0.0, 0.0, 50.0], WORLD_STATS)
+    assert monitor.report(1.0, input_timeout_s=5.0)[0] == OK
+    for total in (50.0, 150.0):  # 2 inputs in 1 s: a 500 ms input period
+        monitor.received()
+        monitor.tick(1.9, [0.0, 0.0, 0.0, 0.0, total], WORLD_STATS)
+    assert monitor.report(2.0, input_timeout_s=5.0)[0] == OK
+    for _ in range(20):
+        monitor.received()
+    monitor.tick(2.9, [0.0, 0.0, 0.0, 0.0, 60.0], WORLD_STATS)  # 20 inputs in 1 s: 50 ms
+    level, message, _ = monitor.report(3.0, input_timeout_s=5.0)
+    assert level == WARN and 'longer than the input period' in message
+    monitor.tick(3.5, [0.0, 0.0, 0.0, 0.0, 150.0], WORLD_STATS)  # a timer ticking at 10 Hz
+    level, message, _ = monitor.report(4.0, input_timeout_s=5.0, tick_period_s=0.1)
+    assert level == WARN and 'longer than the input period' in message
+
+
+def test_no_valid_input_is_an_error_unless_disabled():
+    monitor = Monitor(10.0)
+    assert monitor.report(10.5, input_timeout_s=1.0)[0] == OK
+    level, message, _ = monitor.report(11.2, input_timeout_s=1.0)
+    assert level == ERROR and 'no valid input' in message
+    monitor.rejected('garbage')  # a rejected input is not a valid one
+    assert monitor.report(11.5, input_timeout_s=1.0)[0] == ERROR
+    monitor.tick(11.6, [1.0] * len(STAGES), WORLD_STATS)
+    assert monitor.report(12.0, input_timeout_s=1.0)[0] == OK
+    assert monitor.report(60.0, input_timeout_s=0.0)[0] == OK
+
+
+def test_dropped_inputs_are_a_total():
+    monitor = Monitor(0.0)
+    monitor.dropped()
+    monitor.dropped(4)
+    assert dict(monitor.report(1.0, 0.0)[2])['dropped_inputs'] == '5'
+    monitor.dropped()
+    assert dict(monitor.report(2.0, 0.0)[2])['dropped_inputs'] == '6'
+
+
+def test_no_ticks_reports_zeros():
+    values = dict(Monitor(0.0).report(1.0, 0.0)[2])
+    assert values['ticks'] == '0' and values['total_ms_median'] == '0.000'
+    assert values['broad_phase'] == ''
+
+
+def test_pure_modules_do_not_import_rclpy():
+    check = ('import sys, collision_node.diagnostics, collision_node.params; '
+             'sys.exit(" ".join(m for m in sys.modules if m.startswith("rclpy")) or None)')
+    done = subprocess.run([sys.executable, '-c', check], cwd=REPO, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 0, done.stderr

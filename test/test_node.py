@@ -1,0 +1,430 @@
+"""The node through real ROS topics: PoseArray in, collisions, markers and diagnostics out.
+
+The node and a test node share one executor that the test spins until a condition holds (never
+a sleep that assumes a timing). Expected contacts come from hand-computed depths and normals of
+axis-aligned boxes, and from a brute-force World for the larger scene.
+"""
+import itertools
+import os
+import random
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import Pose, PoseArray
+import numpy as np
+import pytest
+from rcl_interfaces.srv import SetParameters
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+from visualization_msgs.msg import Marker, MarkerArray
+
+from collision_node import scenes
+from collision_node.cdr import serialize_pose_array
+from collision_node.messages import cloud_to_contacts
+from collision_node.node import CollisionNode
+from collision_node.world import DYNAMIC, STATIC, World
+
+DOMAIN_ID = random.Random(os.getpid() + 1).randint(1, 200)
+TIMEOUT_S = 20.0
+RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+INPUT = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+# Axis-aligned scene, all dynamic boxes with half extents 0.1:
+COLLIDERS = {  # name: (pose, half extents); ids 0, 1, 2 in this order
+    'floor': ([0.0, 0.0, -0.5, 0.0, 0.0, 0.0, 1.0], [5.0, 5.0, 0.5]),    # top at z = 0
+    'wall': ([2.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], [0.1, 5.0, 1.0]),      # x in [1.9, 2.1]
+    'crate': ([-2.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0], [0.5, 0.5, 0.5]),    # x in [-2.5, -1.5]
+}
+POSITIONS = [
+    (0.0, 0.0, 0.08),   # 0: 0.02 into the floor
+    (1.85, 0.0, 1.0),   # 1: 0.05 into the wall, 0.03 into body 2
+    (1.68, 0.0, 1.0),   # 2
+    (0.0, 0.0, 3.0),    # 3: free
+    (-1.45, 0.0, 0.5),  # 4: 0.05 into the crate
+]
+# (id_a, type_b, id_b, depth, normal from A to B), in the cloud's order (id_a, type_b, id_b).
+EXPECTED = [
+    (0, STATIC, 0, 0.02, (0.0, 0.0, -1.0)),
+    (1, DYNAMIC, 2, 0.03, (-1.0, 0.0, 0.0)),
+    (1, STATIC, 1, 0.05, (1.0, 0.0, 0.0)),
+    (4, STATIC, 2, 0.05, (-1.0, 0.0, 0.0)),
+]
+HALF = 0.1
+FLOAT32_TOLERANCE = 1e-6  # m: the cloud holds float32; these coordinates are below 3 m
+
+
+def room_overrides(**extra):
+    overrides = {'static_colliders': list(COLLIDERS), 'dynamic.half_extents': [HALF] * 3,
+                 'diagnostic_updater.period': 0.1, 'input_timeout_s': 0.0}
+    for name, (pose, extents) in COLLIDERS.items():
+        overrides['%s.pose' % name] = pose
+        overrides['%s.half_extents' % name] = extents
+    overrides.update(extra)
+    return overrides
+
+
+def room_poses(positions=POSITIONS):
+    poses = np.zeros((len(positions), 7))
+    poses[:, :3] = positions
+    poses[:, 6] = 1.0
+    return poses
+
+
+class Harness:
+    """A CollisionNode and a test node that talks to it, spun by the test."""
+
+    counter = itertools.count()
+
+    def __init__(self, context, **overrides):
+        namespace = 'case%d' % next(self.counter)  # no stray message from an earlier case
+        self.node = CollisionNode(
+            context=context, namespace=namespace,
+            parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
+        self.peer = rclpy.create_node('tester', namespace=namespace, context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.peer)
+        self.poses = self.peer.create_publisher(PoseArray, 'dynamic_poses', INPUT)
+        self.clouds, self.statuses, self.marker_arrays = [], [], []
+        self.peer.create_subscription(PointCloud2, 'collisions', self.clouds.append, RELIABLE)
+        self.peer.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
+                                      RELIABLE)
+        self.markers = None
+        self.wait_for(lambda: self.poses.get_subscription_count() == 1
+                      and self.peer.count_publishers('collisions') == 1)
+
+    def _on_diagnostics(self, message):
+        self.statuses.extend(status for status in message.status
+                             if status.name == 'collision_node: collision_check')
+
+    def subscribe_markers(self):
+        self.markers = self.peer.create_subscription(
+            MarkerArray, 'collision_node/markers', self.marker_arrays.append, RELIABLE)
+
+    def wait_for(self, condition, what='condition'):
+        deadline = time.monotonic() + TIMEOUT_S
+        while not condition():
+            assert time.monotonic() < deadline, 'timed out waiting for %s' % what
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def publish(self, poses, sec, frame_id=''):
+        message = PoseArray()
+        message.header.stamp.sec, message.header.frame_id = sec, frame_id
+        message.poses = [_pose(row) for row in np.asarray(poses).tolist()]
+        self.poses.publish(message)
+
+    def answer(self, sec):
+        """Wait for the cloud stamped ``sec``; no other cloud may come before it."""
+        self.wait_for(lambda: self.clouds, 'collisions stamped %d' % sec)
+        cloud = self.clouds.pop(0)
+        assert cloud.header.stamp.sec == sec
+        return cloud
+
+    def status(self, condition=lambda status: True):
+        """Wait for a diagnostics status that meets ``condition`` and return it."""
+        def found():
+            while self.statuses:
+                status = self.statuses.pop(0)
+                if condition(status):
+                    self.found = status
+                    return True
+            return False
+        self.wait_for(found, 'a diagnostics status')
+        return self.found
+
+    def close(self):
+        self.executor.shutdown()
+        self.peer.destroy_node()
+        self.node.destroy_node()
+
+
+def _pose(row):
+    pose = Pose()
+    pose.position.x, pose.position.y, pose.position.z = row[:3]
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = row[3:]
+    return pose
+
+
+def values(status):
+    return {item.key: item.value for item in status.values}
+
+
+@pytest.fixture(scope='module')
+def context():
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    yield context
+    context.try_shutdown()
+
+
+@pytest.fixture
+def harness(context):
+    made = []
+
+    def make(**overrides):
+        made.append(Harness(context, **room_overrides(**overrides)))
+        return made[-1]
+    yield make
+    for harness in made:
+        harness.close()
+
+
+def check_room_contacts(cloud, expected, poses):
+    assert cloud.header.frame_id == 'world'
+    assert (cloud.height, cloud.width) == (1, len(expected))
+    contacts = cloud_to_contacts(cloud)
+    assert [(c['id_a'], c['type_b'], c['id_b']) for c in contacts] == [
+        (id_a, type_b, id_b) for id_a, type_b, id_b, _, _ in expected]
+    assert (contacts['type_a'] == DYNAMIC).all()
+    for contact, (id_a, type_b, id_b, depth, normal) in zip(contacts, expected):
+        assert contact['depth'] == pytest.approx(depth, abs=FLOAT32_TOLERANCE)
+        np.testing.assert_allclose([contact['normal_x'], contact['normal_y'],
+                                    contact['normal_z']], normal, atol=FLOAT32_TOLERANCE)
+        # The contact point lies where the two (axis-aligned) boxes overlap.
+        low_a, high_a = poses[id_a, :3] - HALF, poses[id_a, :3] + HALF
+        if type_b == DYNAMIC:
+            low_b, high_b = poses[id_b, :3] - HALF, poses[id_b, :3] + HALF
+        else:
+            center, extents = (np.array(v) for v in list(COLLIDERS.values())[id_b])
+            low_b, high_b = center[:3] - extents, center[:3] + extents
+        point = np.array([contact['x'], contact['y'], contact['z']])
+        assert (point >= np.maximum(low_a, low_b) - FLOAT32_TOLERANCE).all()
+        assert (point <= np.minimum(high_a, high_b) + FLOAT32_TOLERANCE).all()
+
+
+def test_contacts_stamp_frame_and_diagnostics(harness):
+    room = harness()
+    poses = room_poses()
+    room.publish(poses, sec=41, frame_id='world')
+    cloud = room.answer(41)
+    check_room_contacts(cloud, EXPECTED, poses)
+    assert [f.name for f in cloud.fields] == ['x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z',
+                                              'depth', 'id_a', 'type_a', 'id_b', 'type_b']
+
+    status = room.status(lambda s: values(s)['ticks'] != '0')
+    assert status.level == DiagnosticStatus.OK, status.message
+    assert status.hardware_id == 'none'
+    found = values(status)
+    for key in ('broad_phase', 'dynamic_bodies', 'static_bodies', 'candidate_pairs',
+                'sat_tests', 'colliding_pairs', 'compared', 'ticks', 'rate_hz',
+                'dropped_inputs', 'rejected_inputs', 'last_rejection'):
+        assert key in found
+    for stage in ('parse', 'broad', 'narrow', 'publish', 'total'):
+        for statistic in ('last', 'median', 'p99', 'max'):
+            assert float(found['%s_ms_%s' % (stage, statistic)]) >= 0.0
+    assert float(found['total_ms_max']) >= float(found['narrow_ms_max'])
+    assert (found['dynamic_bodies'], found['static_bodies'], found['colliding_pairs']) == (
+        '5', '3', '4')
+    assert found['broad_phase'] in ('brute_force', 'sphere', 'octree', 'kd_tree',
+                                    'sweep_and_prune', 'grid')
+    assert found['rejected_inputs'] == '0' and found['last_rejection'] == ''
+
+
+def test_empty_frame_id_and_unchanged_input_are_answered(harness):
+    room = harness()
+    poses = room_poses()
+    room.publish(poses, sec=1)  # an empty frame_id means the node's frame
+    check_room_contacts(room.answer(1), EXPECTED, poses)
+    room.publish(poses, sec=2)  # the same poses again: the World reuses its result
+    check_room_contacts(room.answer(2), EXPECTED, poses)
+    assert values(room.status(lambda s: values(s)['ticks'] != '0'))  # still ticking
+    room.publish(np.zeros((0, 7)), sec=3)
+    assert room.answer(3).width == 0  # published even when nothing collides
+
+
+@pytest.mark.parametrize('case', ['NaN pose', 'bad quaternion', 'other frame', 'too many',
+                                  'sizes for other count', 'not CDR'])
+def test_rejected_input_is_reported_and_not_answered(harness, case):
+    poses = room_poses()
+    overrides, frame_id, reason = {}, 'world', None
+    if case == 'NaN pose':
+        poses[3, 1] = np.nan
+        reason = 'dynamic body 3: pose has a NaN'
+    elif case == 'bad quaternion':
+        poses[2, 3:] = 0.0
+        reason = 'dynamic body 2: quaternion'
+    elif case == 'other frame':
+        frame_id, reason = 'map', "input frame_id 'map'"
+    elif case == 'too many':
+        overrides, reason = {'max_bodies': 4}, '5 poses exceed max_bodies 4'
+    elif case == 'sizes for other count':
+        overrides = {'dynamic.half_extents': [HALF] * 12}
+        reason = 'dynamic.half_extents sizes 4 bodies, the input has 5 poses'
+    room = harness(**overrides)
+    if case == 'not CDR':
+        room.poses.publish(b'\x00\x07\x00\x00' + bytes(16))
+        reason = 'encapsulation'
+    else:
+        room.publish(poses, sec=7, frame_id=frame_id)
+    status = room.status(lambda s: values(s)['rejected_inputs'] == '1')
+    assert status.level == DiagnosticStatus.WARN
+    assert reason in values(status)['last_rejection'] and reason in status.message
+
+    good = room_poses(POSITIONS[:4])  # the next valid input is answered, and only it
+    room.publish(good, sec=8)
+    check_room_contacts(room.answer(8), EXPECTED[:3], good)
+    assert not room.clouds
+
+
+def test_large_input_against_brute_force(harness):
+    scene = scenes.uniform(20000, seed=5)  # 10,000 dynamic boxes: a 560 KB PoseArray
+    poses = scene.dynamic_poses(0.7)
+    names = ['s%d' % i for i in range(len(scene.static_poses))][:50]
+    overrides = {'static_colliders': names, 'dynamic.half_extents':
+                 scene.dynamic_half_extents.ravel().tolist()}
+    for i, name in enumerate(names):
+        overrides['%s.pose' % name] = scene.static_poses[i].tolist()
+        overrides['%s.half_extents' % name] = scene.static_half_extents[i].tolist()
+    room = harness(**overrides)
+    room.poses.publish(serialize_pose_array(9, 5, 'world', poses))
+    cloud = room.answer(9)
+    assert cloud.header.stamp.nanosec == 5
+    reference = World(broad_phase='brute_force')
+    reference.set_static(scene.static_poses[:50], scene.static_half_extents[:50])
+    expected = reference.step(poses, scene.dynamic_half_extents).contacts
+    contacts = cloud_to_contacts(cloud)
+    assert len(expected) > 1000
+    for field in ('id_a', 'type_a', 'id_b', 'type_b'):
+        np.testing.assert_array_equal(contacts[field], expected[field])
+    for field in ('x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth'):
+        np.testing.assert_allclose(contacts[field], expected[field], rtol=1e-6, atol=1e-5)
+
+
+def test_run_time_parameters(harness):
+    room = harness(**{'crate.enabled': False})
+    poses = room_poses()
+    room.publish(poses, sec=1)
+    without_crate = [c for c in EXPECTED if c[2] != 2 or c[1] == DYNAMIC]
+    check_room_contacts(room.answer(1), without_crate, poses)
+
+    node = room.node
+    result = node.set_parameters([Parameter('crate.enabled', value=True)])[0]
+    assert result.successful, result.reason
+    room.publish(poses, sec=2)
+    check_room_contacts(room.answer(2), EXPECTED, poses)  # the crate keeps id 2
+
+    for name, value, words in (('broad_phase', 'bvh', 'unknown broad phase'),
+                               ('octree.max_depth', 11, 'depth'),
+                               ('frame_id', 'map', 'read-only'),
+                               ('static_colliders', ['floor'], 'read-only'),
+                               ('wall.pose', [0.0] * 7, 'read-only'),
+                               ('crate.enabled', 1, 'type')):
+        result = node.set_parameters([Parameter(name, value=value)])[0]
+        assert not result.successful and words in result.reason, (name, result.reason)
+    assert node.get_parameter('broad_phase').value == 'auto'
+
+    # Through the parameter service, as `ros2 param set` does it.
+    client = room.peer.create_client(SetParameters, 'collision_node/set_parameters')
+    room.wait_for(client.service_is_ready, 'the parameter service')
+    future = client.call_async(SetParameters.Request(parameters=[
+        Parameter('broad_phase', value='sphere').to_parameter_msg(),
+        Parameter('sphere_prefilter', value=False).to_parameter_msg()]))
+    room.wait_for(future.done, 'the parameter service answer')
+    assert all(result.successful for result in future.result().results)
+    room.statuses.clear()
+    room.publish(poses, sec=3)
+    check_room_contacts(room.answer(3), EXPECTED, poses)
+    assert values(room.status(lambda s: values(s)['ticks'] != '0'))['broad_phase'] == 'sphere'
+
+
+def count_ticks_and_drops(room, published):
+    """Wait until every published input was either checked or counted as dropped."""
+    ticks, dropped = 0, 0
+
+    def all_counted():
+        nonlocal ticks, dropped
+        while room.statuses:
+            found = values(room.statuses.pop(0))
+            ticks += int(found['ticks'])
+            dropped = int(found['dropped_inputs'])
+        return ticks + dropped == published
+    room.wait_for(all_counted, 'ticks + dropped_inputs == %d' % published)
+    return ticks, dropped
+
+
+def test_timer_mode_checks_the_newest_input(harness):
+    room = harness(tick_rate_hz=20.0)
+    poses = room_poses()
+    room.publish(poses, sec=11)
+    check_room_contacts(room.answer(11), EXPECTED, poses)
+    # Inputs the timer never checked are counted: replaced ones and queue overwrites alike.
+    for sec in (12, 13, 14):
+        room.publish(poses, sec=sec)
+    room.wait_for(lambda: room.clouds and room.clouds[-1].header.stamp.sec == 14, 'stamp 14')
+    ticks, dropped = count_ticks_and_drops(room, 4)
+    assert ticks == 1 + len(room.clouds)
+    check_room_contacts(room.clouds[-1], EXPECTED, poses)
+
+
+def test_dropped_inputs_count_queue_overwrites(harness):
+    room = harness()
+    poses = room_poses()
+    # A gap in the sequence numbers counts once one message came through (earlier ones may
+    # have been published before the node subscribed: never meant for it).
+    for sec in range(11):  # 10 messages before the node can take one: depth 1 keeps few
+        room.publish(poses, sec=sec)
+        if sec == 0:
+            room.wait_for(lambda: room.clouds, 'the first answer')
+    room.wait_for(lambda: room.clouds[-1].header.stamp.sec == 10, 'stamp 10')
+    ticks, dropped = count_ticks_and_drops(room, 11)
+    assert ticks == len(room.clouds) and dropped > 0
+    stamps = [cloud.header.stamp.sec for cloud in room.clouds]
+    assert stamps == sorted(stamps)
+
+
+def test_no_input_is_an_error(harness):
+    room = harness(input_timeout_s=0.3)
+    assert 'no valid input' in room.status(lambda s: s.level == DiagnosticStatus.ERROR).message
+    room.publish(room_poses(), sec=1)
+    room.answer(1)
+    room.status(lambda s: s.level == DiagnosticStatus.OK)
+
+
+def test_markers_only_while_subscribed(harness):
+    room = harness()
+    built = []
+    publish_markers = room.node._publish_markers
+    room.node._publish_markers = lambda *args: built.append(publish_markers(*args))
+    poses = room_poses()
+    room.publish(poses, sec=1)
+    room.answer(1)
+    assert not built
+
+    room.subscribe_markers()
+    room.wait_for(lambda: room.markers.get_publisher_count() == 1)
+    room.publish(poses, sec=2)
+    room.answer(2)
+    room.wait_for(lambda: room.marker_arrays, 'markers')
+    markers = room.marker_arrays[-1].markers
+    assert markers[0].action == Marker.DELETEALL
+    by_namespace = {}
+    for marker in markers[1:]:
+        assert marker.action == Marker.ADD and marker.header.stamp.sec == 2
+        by_namespace.setdefault(marker.ns, []).append(marker)
+    assert sorted(by_namespace) == ['dynamic', 'normals', 'static']
+    assert [m.id for m in by_namespace['static']] == [0, 1, 2]
+    assert all(m.type == Marker.CUBE for m in by_namespace['static'] + by_namespace['dynamic'])
+    dynamic = {m.id: m for m in by_namespace['dynamic']}
+    assert sorted(dynamic) == [0, 1, 2, 3, 4]
+    assert dynamic[0].scale.x == pytest.approx(2 * HALF)
+    assert dynamic[1].pose.position.x == pytest.approx(1.85)
+    colors = {i: (m.color.r, m.color.g, m.color.b) for i, m in dynamic.items()}
+    assert colors[0] == colors[1] == colors[2] == colors[4] != colors[3]  # 3 is free
+    static_color = by_namespace['static'][0].color
+    assert (static_color.r, static_color.g, static_color.b) not in colors.values()
+    arrows = by_namespace['normals']
+    assert len(arrows) == len(EXPECTED) and all(m.type == Marker.ARROW for m in arrows)
+    for arrow, (_, _, _, depth, normal) in zip(sorted(arrows, key=lambda m: m.id), EXPECTED):
+        q = arrow.pose.orientation
+        x_axis = [1 - 2 * (q.y * q.y + q.z * q.z), 2 * (q.x * q.y + q.z * q.w),
+                  2 * (q.x * q.z - q.y * q.w)]  # first column of the rotation matrix
+        np.testing.assert_allclose(x_axis, normal, atol=1e-6)
+
+    room.peer.destroy_subscription(room.markers)
+    room.wait_for(lambda: room.node._markers_publisher.get_subscription_count() == 0)
+    count = len(built)
+    room.publish(poses, sec=3)
+    room.answer(3)
+    assert len(built) == count

@@ -1,0 +1,241 @@
+"""Parameters: validation without ROS, then the same through a real node and a real process."""
+import math
+import os
+import pathlib
+import random
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from collision_node import params
+from collision_node.params import ParameterError
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+DOMAIN_ID = random.Random(os.getpid()).randint(1, 200)
+TABLE = {'table.pose': [0.0, 0.0, 0.4, 0.0, 0.0, 0.0, 1.0],
+         'table.half_extents': [0.6, 0.4, 0.02]}
+SHELF = {'shelf.pose': [1.2, 0.0, 1.0, 0.0, 0.0, 0.3826834, 0.9238795],
+         'shelf.half_extents': [0.2, 0.5, 1.0], 'shelf.enabled': False}
+GOOD = dict(static_colliders=['table', 'shelf'], **TABLE, **SHELF)
+
+# Each bad set (added to GOOD) names the parameter the error must name and a word it must say.
+BAD = {
+    'missing pose': ({'table.pose': None}, 'table.pose', 'missing'),
+    'short pose': ({'table.pose': [0.0, 0.0, 0.4, 0.0, 0.0, 1.0]}, 'table.pose', '7 values'),
+    'NaN in pose': ({'table.pose': [math.nan, 0.0, 0.4, 0.0, 0.0, 0.0, 1.0]}, 'table.pose',
+                    'NaN'),
+    'zero quaternion': ({'shelf.pose': [0.0] * 7}, 'shelf.pose', 'unit quaternion'),
+    'long quaternion': ({'shelf.pose': [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.1]}, 'shelf.pose',
+                        'unit quaternion'),
+    'missing extents': ({'shelf.half_extents': None}, 'shelf.half_extents', 'missing'),
+    'two extents': ({'table.half_extents': [0.6, 0.4]}, 'table.half_extents', '3 values'),
+    'negative extent': ({'table.half_extents': [0.6, -0.4, 0.02]}, 'table.half_extents',
+                        '>= 0'),
+    'NaN extent': ({'table.half_extents': [0.6, math.nan, 0.02]}, 'table.half_extents',
+                   'finite'),
+    'string enabled': ({'table.enabled': 'yes'}, 'table.enabled', 'bool'),
+    'dynamic extents 4': ({'dynamic.half_extents': [0.1, 0.1, 0.1, 0.1]},
+                          'dynamic.half_extents', '3 per body'),
+    'dynamic extents empty': ({'dynamic.half_extents': []}, 'dynamic.half_extents', '3 values'),
+    'dynamic extent inf': ({'dynamic.half_extents': [0.1, math.inf, 0.1]},
+                           'dynamic.half_extents', 'finite'),
+    'unknown broad phase': ({'broad_phase': 'quadtree'}, 'broad_phase', 'quadtree'),
+    'octree depth': ({'octree.max_depth': -1}, 'octree.max_depth', 'depth'),
+    'octree cooldown': ({'octree.leaf_cooldown_ticks': -2}, 'octree.leaf_cooldown_ticks', '>= 0'),
+    'duplicate collider': ({'static_colliders': ['table', 'shelf', 'table']}, 'static_colliders',
+                           'twice'),
+    'reserved collider name': ({'static_colliders': ['octree']}, 'static_colliders', 'taken'),
+    'dotted collider name': ({'static_colliders': ['a.b']}, 'static_colliders', 'letters'),
+    'negative tick rate': ({'tick_rate_hz': -1.0}, 'tick_rate_hz', 'in [0'),
+    'NaN tick rate': ({'tick_rate_hz': math.nan}, 'tick_rate_hz', 'in [0'),
+    'huge tick rate': ({'tick_rate_hz': 1e6}, 'tick_rate_hz', 'in [0'),
+    'negative timeout': ({'input_timeout_s': -0.5}, 'input_timeout_s', 'in [0'),
+    'no bodies': ({'max_bodies': 0}, 'max_bodies', 'in [1'),
+    'zero period': ({'diagnostic_updater.period': 0.0}, 'diagnostic_updater.period',
+                    'positive'),
+    'empty frame': ({'frame_id': ''}, 'frame_id', 'frame'),
+    'string as double': ({'input_timeout_s': 'soon'}, 'input_timeout_s', 'double'),
+}
+
+
+def test_defaults_are_the_design_table():
+    parsed = params.parse({})
+    assert parsed.frame_id == 'world' and parsed.broad_phase == 'auto'
+    assert parsed.sphere_prefilter is True
+    assert (parsed.octree_max_depth, parsed.octree_leaf_cooldown_ticks) == (0, 15)
+    np.testing.assert_array_equal(parsed.dynamic_half_extents, [0.5, 0.5, 0.5])
+    assert parsed.colliders == ()
+    assert (parsed.tick_rate_hz, parsed.input_timeout_s, parsed.max_bodies,
+            parsed.diagnostic_period_s) == (0.0, 1.0, 100000, 1.0)
+    poses, extents, ids = parsed.static_scene()
+    assert poses.shape == (0, 7) and extents.shape == (0, 3) and ids.shape == (0,)
+
+
+def test_named_colliders_keep_their_list_index():
+    parsed = params.parse(GOOD)
+    assert [c.name for c in parsed.colliders] == ['table', 'shelf']
+    np.testing.assert_array_equal(parsed.colliders[1].pose, SHELF['shelf.pose'])
+    np.testing.assert_array_equal(parsed.colliders[0].half_extents, [0.6, 0.4, 0.02])
+    assert [c.enabled for c in parsed.colliders] == [True, False]
+    poses, extents, ids = params.parse(
+        dict(GOOD, static_colliders=['shelf', 'table'], **{'shelf.enabled': True,
+                                                           'table.enabled': False})
+    ).static_scene()
+    assert ids.tolist() == [0]  # table is disabled; the shelf keeps index 0
+    np.testing.assert_array_equal(poses[0], SHELF['shelf.pose'])
+
+
+def test_dynamic_half_extents_one_size_or_one_per_body():
+    assert params.parse({'dynamic.half_extents': [1, 2, 3]}).dynamic_half_extents.shape == (3,)
+    per_body = params.parse({'dynamic.half_extents': [1, 2, 3, 4, 5, 6]}).dynamic_half_extents
+    np.testing.assert_array_equal(per_body, [[1, 2, 3], [4, 5, 6]])
+
+
+@pytest.mark.parametrize('case', sorted(BAD))
+def test_bad_parameter_is_named(case):
+    change, name, words = BAD[case]
+    with pytest.raises(ParameterError) as raised:
+        params.parse(dict(GOOD, **change))
+    assert raised.value.name == name
+    assert str(raised.value).startswith("parameter '%s': " % name)
+    assert words in str(raised.value)
+
+
+def test_run_time_changes():
+    parsed = params.parse(GOOD)
+    changed = params.run_time_change(parsed, 'shelf.enabled', True)
+    assert [c.enabled for c in changed.colliders] == [True, True]
+    assert params.run_time_change(parsed, 'broad_phase', 'sphere').broad_phase == 'sphere'
+    assert params.run_time_change(parsed, 'octree.max_depth', 4).octree_max_depth == 4
+    assert params.run_time_change(parsed, 'sphere_prefilter', False).sphere_prefilter is False
+    assert params.run_time_change(parsed, 'use_sim_time', True) == parsed  # not ours
+    for name, value, words in (('broad_phase', 'nope', 'unknown broad phase'),
+                               ('octree.max_depth', 11, 'depth'),
+                               ('shelf.enabled', 1, 'bool'),
+                               ('shelf.pose', [0.0] * 7, 'fixed at start'),
+                               ('static_colliders', ['a'], 'fixed at start'),
+                               ('frame_id', 'map', 'fixed at start')):
+        with pytest.raises(ParameterError, match=words) as raised:
+            params.run_time_change(parsed, name, value)
+        assert raised.value.name == name
+
+
+# Through rclpy: the same checks must hold for values that come from a params file.
+
+@pytest.fixture
+def context():
+    import rclpy
+    context = rclpy.Context()
+    yield context
+    context.try_shutdown()
+
+
+def write_params(path, body):
+    path.write_text('collision_node:\n  ros__parameters:\n' + ''.join(
+        '    %s\n' % line for line in body.strip('\n').split('\n')))
+    return str(path)
+
+
+GOOD_YAML = """
+frame_id: map
+broad_phase: brute_force
+static_colliders: [table, shelf]
+dynamic:
+  half_extents: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+table:
+  pose: [0.0, 0.0, 0.4, 0.0, 0.0, 0.0, 1.0]
+  half_extents: [0.6, 0.4, 0.02]
+shelf:
+  pose: [1.2, 0.0, 1.0, 0.0, 0.0, 0.3826834, 0.9238795]
+  half_extents: [0.2, 0.5, 1.0]
+  enabled: false
+"""
+BAD_YAML = {  # name the error must name: the params file
+    'shelf.half_extents': GOOD_YAML.replace('[0.2, 0.5, 1.0]', '[0.2, -0.5, 1.0]'),
+    'table.pose': GOOD_YAML.replace('0.0, 0.4, 0.0, 0.0, 0.0, 1.0]', '0.0, 0.4, 0.0, 0.0, 1.0]'),
+    'shelf.pose': GOOD_YAML.replace('  pose: [1.2, 0.0, 1.0, 0.0, 0.0, 0.3826834, 0.9238795]\n',
+                                    ''),
+    'broad_phase': GOOD_YAML.replace('brute_force', 'bvh'),
+    'static_colliders': GOOD_YAML.replace('[table, shelf]', '[table, table]'),
+    'tick_rate_hz': GOOD_YAML + 'tick_rate_hz: -5.0\n',
+    'max_bodies': GOOD_YAML + 'max_bodies: 0\n',
+    # An integer where a double is declared: rclpy's type check, reported with the name.
+    'input_timeout_s': GOOD_YAML + 'input_timeout_s: 2\n',
+    'dynamic.half_extents': GOOD_YAML.replace('0.5, 0.6]', '0.5]'),
+}
+
+
+def test_params_file_reaches_the_node(context, tmp_path):
+    import rclpy
+    from collision_node.node import CollisionNode
+    rclpy.init(args=['--ros-args', '--params-file', write_params(tmp_path / 'p.yaml', GOOD_YAML)],
+               context=context, domain_id=DOMAIN_ID)
+    node = CollisionNode(context=context)
+    try:
+        assert node.get_parameter('frame_id').value == 'map'
+        assert list(node.get_parameter('table.half_extents').value) == [0.6, 0.4, 0.02]
+        assert node.get_parameter('shelf.enabled').value is False
+        assert node.get_parameter('table.enabled').value is True  # the default
+        assert node.get_parameter('max_bodies').value == 100000
+        assert node.get_parameter('qos_overrides./dynamic_poses.subscription.depth').value == 1
+    finally:
+        node.destroy_node()
+
+
+def test_empty_collider_list_from_yaml(context, tmp_path):
+    import rclpy
+    from collision_node.node import CollisionNode
+    path = write_params(tmp_path / 'p.yaml', 'static_colliders: []\n')
+    rclpy.init(args=['--ros-args', '--params-file', path], context=context,
+               domain_id=DOMAIN_ID)
+    node = CollisionNode(context=context)  # an empty YAML list arrives untyped: still valid
+    node.destroy_node()
+
+
+@pytest.mark.parametrize('name', sorted(BAD_YAML))
+def test_bad_params_file_stops_the_node(context, tmp_path, name):
+    import rclpy
+    from collision_node.node import CollisionNode
+    path = write_params(tmp_path / 'p.yaml', BAD_YAML[name])
+    rclpy.init(args=['--ros-args', '--params-file', path], context=context,
+               domain_id=DOMAIN_ID)
+    with pytest.raises(ParameterError) as raised:
+        CollisionNode(context=context)
+    assert raised.value.name == name
+
+
+def test_bad_overrides_stop_the_node(context):
+    import rclpy
+    from rclpy.parameter import Parameter
+    from collision_node.node import CollisionNode
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    with pytest.raises(ParameterError, match="parameter 'box.pose': quaternion"):
+        CollisionNode(context=context, parameter_overrides=[
+            Parameter('static_colliders', value=['box']),
+            Parameter('box.pose', value=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0]),
+            Parameter('box.half_extents', value=[1.0, 1.0, 1.0])])
+
+
+def run_node(params_file):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID),
+               PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]))
+    return subprocess.run(
+        [sys.executable, '-m', 'collision_node.node', '--ros-args', '--params-file', params_file],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+
+
+def test_process_exits_with_the_parameter_named(tmp_path):
+    done = run_node(write_params(tmp_path / 'bad.yaml', BAD_YAML['shelf.half_extents']))
+    assert done.returncode == 2
+    assert "parameter 'shelf.half_extents'" in done.stderr
+    assert 'Traceback' not in done.stderr
+
+
+def test_process_exits_on_an_unparsable_params_file(tmp_path):
+    # rcl itself refuses a list mixing integers and doubles, before any node exists.
+    done = run_node(write_params(tmp_path / 'bad.yaml', 'dynamic:\n  half_extents: [1, 0.5, 1]'))
+    assert done.returncode == 2
+    assert 'Sequence should be of same type' in done.stderr
+    assert 'Traceback' not in done.stderr
