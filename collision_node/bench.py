@@ -48,7 +48,10 @@ class Plan(NamedTuple):
     fcl_sizes: tuple           # (bodies, ticks) on the uniform scene
     profile_sizes: tuple       # (scene, bodies, ticks, dt): the targets' scenes
     budget_s: float            # a run stops early (marked truncated) after this wall time
-    max_tick_s: float          # a run expected to take longer per tick is skipped
+    # A run expected to take longer per tick is skipped. Keep it >= 1 s: then a skipped run
+    # misses every DESIGN §5 target even if its phase scales linearly (the report counts a
+    # skipped default phase as failing).
+    max_tick_s: float
 
 
 DT = 1.0 / 60.0  # s
@@ -82,7 +85,7 @@ PLANS = {
         fcl_sizes=((1000, 10), (5000, 5), (20000, 3)),
         profile_sizes=(('flying_out', 1024, 60, 5.0 / 60), ('uniform', 10000, 20, DT),
                        ('uniform', 100000, 5, DT)),
-        budget_s=5.0, max_tick_s=0.25),
+        budget_s=5.0, max_tick_s=1.0),
     # For the tests: every section on small scenes, in seconds.
     'tiny': Plan(
         flying_out_sizes=(64, 128), flying_out_ticks=10, flying_out_dt=0.5,
@@ -92,7 +95,7 @@ PLANS = {
                          ('uniform', 300, 5, DT), ('clustered', 300, 5, DT)),
         fcl_sizes=((300, 3),),
         profile_sizes=(('flying_out', 128, 5, 0.5), ('uniform', 1000, 3, DT)),
-        budget_s=5.0, max_tick_s=0.25),
+        budget_s=5.0, max_tick_s=1.0),
 }
 
 
