@@ -11,6 +11,7 @@ the parameter and says what is wrong with it.
 """
 import math
 import re
+import reprlib
 from typing import NamedTuple
 
 import numpy as np
@@ -65,6 +66,7 @@ RESERVED_NAMES = frozenset(name.split('.')[0] for name in PARAMETERS) | {
 # Python), and no pose source publishes that fast.
 MAX_TICK_RATE_HZ = 1000.0
 POSE_SIZE = 7
+GIVEN_TYPE = re.compile(r"of type '(\w+)', expecting")  # in rclpy's InvalidParameterTypeException
 WORLD_SETTINGS = {  # parameter name: World keyword; the World judges these values itself
     'broad_phase': 'broad_phase',
     'octree.max_depth': 'octree_max_depth',
@@ -216,9 +218,12 @@ def declare(node):
         try:
             value = node.declare_parameter(name, default, descriptor).value
         except InvalidParameterTypeException as error:
-            hint = ' (write 1.0, not 1)' if spec.type.startswith(DOUBLE) else ''
-            raise ParameterError(name, 'must be of type %s%s: %s' % (spec.type, hint, error)) \
-                from None
+            # rclpy's text repeats the whole value (thousands of numbers for 3 x N extents):
+            # keep only the type it found.
+            given = GIVEN_TYPE.search(str(error))
+            raise ParameterError(name, 'must be of type %s%s, got %s' % (
+                spec.type, ' (write 1.0, not 1)' if spec.type.startswith(DOUBLE) else '',
+                given.group(1).lower() if given else str(error)[:200])) from None
         return None if value is None else _plain(value)
 
     values = {name: declare_one(name, spec) for name, spec in PARAMETERS.items()}
@@ -261,7 +266,7 @@ def _checked(name, type_name, value):
             return items
         if type_name == DOUBLE_ARRAY and items is not None and all(map(is_number, items)):
             return [float(item) for item in items]
-    raise ParameterError(name, 'must be of type %s, got %r' % (type_name, value))
+    raise ParameterError(name, 'must be of type %s, got %s' % (type_name, reprlib.repr(value)))
 
 
 def _checked_or_none(name, type_name, value):
@@ -294,7 +299,7 @@ def _pose(name, values):
         raise ParameterError(name, 'needs 7 values x y z qx qy qz qw, got %d' % len(values))
     pose = np.array(values, dtype=np.float64)
     if not np.all(np.isfinite(pose)):
-        raise ParameterError(name, 'has a NaN or infinite value: %s' % values)
+        raise ParameterError(name, 'has a NaN or infinite value: %s' % (values,))
     norm = float(np.linalg.norm(pose[3:]))
     if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
         raise ParameterError(name, 'quaternion qx qy qz qw = %s has norm %.6g; it must be a '

@@ -184,6 +184,26 @@ def test_params_file_reaches_the_node(context, tmp_path):
         node.destroy_node()
 
 
+def test_default_config_is_the_demo_room(context):
+    import rclpy
+    from collision_node import scenes
+    from collision_node.node import CollisionNode
+    rclpy.init(args=['--ros-args', '--params-file', str(REPO / 'config' / 'default.yaml')],
+               context=context, domain_id=DOMAIN_ID)
+    node = CollisionNode(context=context)
+    try:
+        assert node.get_parameter('static_colliders').value == list(scenes.ROOM_STATICS)
+        for name, (pose, extents) in scenes.ROOM_STATICS.items():
+            assert list(node.get_parameter(name + '.pose').value) == list(pose)
+            assert list(node.get_parameter(name + '.half_extents').value) == list(extents)
+        assert list(node.get_parameter('dynamic.half_extents').value) == list(
+            scenes.ROOM_HALF_EXTENTS)
+        assert node.get_parameter('broad_phase').value == 'auto'
+        assert node.get_parameter('frame_id').value == 'world'
+    finally:
+        node.destroy_node()
+
+
 def test_empty_collider_list_from_yaml(context, tmp_path):
     import rclpy
     from collision_node.node import CollisionNode
@@ -204,6 +224,9 @@ def test_bad_params_file_stops_the_node(context, tmp_path, name):
     with pytest.raises(ParameterError) as raised:
         CollisionNode(context=context)
     assert raised.value.name == name
+    if name == 'input_timeout_s':
+        assert str(raised.value) == ("parameter 'input_timeout_s': must be of type double "
+                                     '(write 1.0, not 1), got integer')
 
 
 def test_bad_overrides_stop_the_node(context):
