@@ -132,9 +132,9 @@ def parse(values):
     for name in WORLD_SETTINGS:
         check_world_setting(name, read[name])
     names = read['static_colliders']
+    _check_collider_names(names)
     colliders = []
-    for index, name in enumerate(names):
-        _check_collider_name(names, index)
+    for name in names:
         pose, extents, enabled = (  # a missing pose or size stays None: _pose() says so
             _checked_or_none('%s.%s' % (name, key), spec.type, get('%s.%s' % (name, key), spec))
             for key, spec in COLLIDER_PARAMETERS.items())
@@ -229,10 +229,10 @@ def declare(node):
     values = {name: declare_one(name, spec) for name, spec in PARAMETERS.items()}
     # Collider blocks can only be declared once their names are known (nav2's pattern).
     names = _checked('static_colliders', STRING_ARRAY, values['static_colliders'] or [])
-    for index in range(len(names)):
-        _check_collider_name(names, index)
+    _check_collider_names(names)
+    for collider in names:
         for key, spec in COLLIDER_PARAMETERS.items():
-            name = '%s.%s' % (names[index], key)
+            name = '%s.%s' % (collider, key)
             values[name] = declare_one(name, spec)
     return parse(values)
 
@@ -324,13 +324,15 @@ def _half_extents(name, values, single):
     return extents if len(extents) == 3 else extents.reshape(-1, 3)
 
 
-def _check_collider_name(names, index):
-    name = names[index]
-    if not COLLIDER_NAME.match(name):
-        raise ParameterError('static_colliders', 'name %r must start with a letter and hold '
-                                                 'only letters, digits and _' % name)
-    if name in RESERVED_NAMES:
-        raise ParameterError('static_colliders', "name %r is taken by the node's own "
-                                                 'parameters; choose another' % name)
-    if name in names[:index]:
-        raise ParameterError('static_colliders', 'name %r appears twice' % name)
+def _check_collider_names(names):
+    seen = set()
+    for name in names:
+        if not COLLIDER_NAME.match(name):
+            raise ParameterError('static_colliders', 'name %r must start with a letter and hold '
+                                                     'only letters, digits and _' % name)
+        if name in RESERVED_NAMES:
+            raise ParameterError('static_colliders', "name %r is taken by the node's own "
+                                                     'parameters; choose another' % name)
+        if name in seen:
+            raise ParameterError('static_colliders', 'name %r appears twice' % name)
+        seen.add(name)
