@@ -428,3 +428,52 @@ def test_markers_only_while_subscribed(harness):
     room.publish(poses, sec=3)
     room.answer(3)
     assert len(built) == count
+
+
+NO_COMPILE_CHECK = """
+import sys
+import numba
+import numpy as np
+import rclpy
+from rclpy.parameter import Parameter
+from collision_node import scenes
+from collision_node.broadphase import NAMES
+from collision_node.cdr import serialize_pose_array
+from collision_node.node import CollisionNode
+
+
+def compiled():
+    return {(module, name): len(item.overloads)
+            for module, loaded in list(sys.modules.items()) if module.startswith('collision_node')
+            for name, item in vars(loaded).items()
+            if isinstance(item, numba.core.registry.CPUDispatcher)}
+
+
+rclpy.init(domain_id=%d)
+scene = scenes.uniform(400, seed=2)
+node = CollisionNode(parameter_overrides=[
+    Parameter('dynamic.half_extents', value=scene.dynamic_half_extents.ravel().tolist())])
+before = compiled()
+for name in NAMES:
+    assert node.set_parameters([Parameter('broad_phase', value=name)])[0].successful
+    for t in (0.0, 0.3, 0.3, 0.9):
+        node._check(serialize_pose_array(1, 0, '', scene.dynamic_poses(t)))
+    bad = scene.dynamic_poses(0.0)
+    bad[7, 2] = np.nan
+    node._check(serialize_pose_array(1, 0, '', bad))
+after = compiled()
+assert len(before) > 5, before
+changed = {key: (before.get(key), count) for key, count in after.items()
+           if before.get(key) != count}
+sys.exit('compiled during ticks: %%s' %% changed if changed else None)
+""" % DOMAIN_ID
+
+
+def test_nothing_compiles_during_a_tick(tmp_path):
+    """In a fresh process: after the node's warm-up, ticks in every broad phase add no code."""
+    import subprocess
+    import sys
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    done = subprocess.run([sys.executable, '-c', NO_COMPILE_CHECK], cwd=repo,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
