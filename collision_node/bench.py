@@ -122,17 +122,19 @@ class SlowRunFilter:
         self._max_tick_s = max_tick_s
         self._last = {}  # key -> (bodies, median ms)
 
-    def reason_to_skip(self, key, bodies):
+    def reason_to_skip(self, key, bodies, max_tick_s=None):
+        """Why the run ``key`` at ``bodies`` should be skipped, or None to run it."""
         if key not in self._last:
             return None
         last_bodies, last_ms = self._last[key]
         expected_s = 1e-3 * last_ms * (bodies / last_bodies) ** 2
-        if expected_s <= self._max_tick_s:
+        if expected_s <= (max_tick_s or self._max_tick_s):
             return None
         return ('skipped: ~%.3g s per tick expected (%.3g ms at %d bodies, scaled as n^2)'
                 % (expected_s, last_ms, last_bodies))
 
     def record(self, key, bodies, median_ms):
+        """Remember that run ``key`` took ``median_ms`` per tick at ``bodies``."""
         self._last[key] = (bodies, median_ms)
 
 
@@ -145,6 +147,7 @@ class Bench:
         self.progress = progress
         self.slow = SlowRunFilter(plan.max_tick_s)
         self.errors = []
+        self.results = {}  # section -> rows, filled as the sections finish
 
     def scene(self, name, bodies):
         return make_scene(name, bodies, self.seed)
@@ -303,25 +306,45 @@ class Bench:
         return rows
 
     def profile(self):
+        """Stage timings of the default phase and of the quickest one measured so far."""
         rows = []
-        profile_stages(self.scene('uniform', 64), 2, DT, self.plan.budget_s)  # warm
         for scene_name, bodies, ticks, dt in self.plan.profile_sizes:
-            # The scenes section ran the same configuration before: its tick times count.
-            key = ('scenes', scene_name, DEFAULT_PHASE)
-            label = 'profile %s n=%d' % (scene_name, bodies)
-            ids = {'scene': scene_name, 'bodies': bodies, 'broad_phase': DEFAULT_PHASE}
-            reason = self.slow.reason_to_skip(key, bodies)
-            if reason:
-                self.progress('%s: %s' % (label, reason))
-                rows.append(dict(ids, skipped=reason))
-                continue
-            row = self._guarded(label, profile_stages, self.scene(scene_name, bodies), ticks,
-                                dt, self.plan.budget_s, DEFAULT_PHASE)
-            rows.append(dict(ids, **row))
-            if 'error' not in row:
-                self.slow.record(key, bodies, row['tick_ms'])
-                self.progress('%s: tick %.3f ms' % (label, row['tick_ms']))
+            phases = [DEFAULT_PHASE]
+            quickest = self._quickest_phase(scene_name, bodies)
+            if quickest and quickest != DEFAULT_PHASE:
+                phases.append(quickest)
+            for name in phases:
+                rows.append(self._profile_row(scene_name, bodies, ticks, dt, name))
         return rows
+
+    def _profile_row(self, scene_name, bodies, ticks, dt, name):
+        # The scenes section ran the same configuration before: its tick times count. A
+        # profile takes few ticks, so it may try sizes ten times slower than a timing run.
+        key = ('scenes', scene_name, name)
+        label = 'profile %s n=%d %s' % (scene_name, bodies, name)
+        ids = {'scene': scene_name, 'bodies': bodies, 'broad_phase': name}
+        reason = self.slow.reason_to_skip(key, bodies, 10 * self.plan.max_tick_s)
+        if reason:
+            self.progress('%s: %s' % (label, reason))
+            return dict(ids, skipped=reason)
+        profile_stages(self.scene(scene_name, 64), 2, dt, self.plan.budget_s, name)  # warm
+        row = self._guarded(label, profile_stages, self.scene(scene_name, bodies), ticks,
+                            dt, self.plan.budget_s, name)
+        if 'error' not in row:
+            self.slow.record(key, bodies, row['tick_ms'])
+            self.progress('%s: tick %.3f ms' % (label, row['tick_ms']))
+        return dict(ids, **row)
+
+    def _quickest_phase(self, scene_name, bodies):
+        """The phase with the lowest median tick at the largest measured size <= bodies."""
+        rows = [row for section in ('paper001', 'scenes') for row in self.results.get(section, [])
+                if row.get('scene') == scene_name and row.get('bodies', 0) <= bodies
+                and 'median_ms' in row and row['broad_phase'] != 'auto']
+        if not rows:
+            return None
+        largest = max(row['bodies'] for row in rows)
+        return min((row for row in rows if row['bodies'] == largest),
+                   key=lambda row: row['median_ms'])['broad_phase']
 
 
 def reproduce_command(args):
@@ -399,7 +422,7 @@ def main(argv=None):
     started = time.perf_counter()
     for section in args.only or SECTIONS:
         progress('section %s' % section)
-        results[section] = getattr(bench, section)()
+        results[section] = bench.results[section] = getattr(bench, section)()
     results['meta']['seconds'] = time.perf_counter() - started
     results['meta']['errors'] = bench.errors
     paths = report.write(args.output, results)
