@@ -29,6 +29,7 @@ class Monitor:
         self._period_start = start_s
         self._ticks = 0             # this period
         self._received = 0          # this period: input messages that arrived
+        self._dropped = 0           # this period
         self._rejected = 0          # this period
         self._dropped_total = 0     # since start
         self._rejected_total = 0    # since start
@@ -44,6 +45,7 @@ class Monitor:
 
     def dropped(self, count=1):
         """Count inputs that were never processed."""
+        self._dropped += count
         self._dropped_total += count
 
     def rejected(self, reason):
@@ -68,10 +70,12 @@ class Monitor:
         """Return (level, message, [(key, value)]) for the period ending now, then reset it.
 
         ``tick_period_s`` is the timer period when a timer ticks (0: ticks follow the inputs,
-        whose period is measured). ``input_timeout_s`` 0 disables the ERROR level.
+        whose period is measured from the inputs that arrived or were dropped on the way).
+        ``input_timeout_s`` 0 disables the ERROR level.
         """
         elapsed = max(now_s - self._period_start, 1e-9)
-        input_period = tick_period_s or (elapsed / self._received if self._received else 0.0)
+        inputs = self._received + self._dropped
+        input_period = tick_period_s or (elapsed / inputs if inputs else 0.0)
         count = min(self._ticks, len(self._times))
         times = self._times[:count]
         if count:  # 'higher': a reported percentile is always a time some tick really took
@@ -104,7 +108,7 @@ class Monitor:
             level, message = OK, '%d ticks at %.1f Hz' % (self._ticks, self._ticks / elapsed)
 
         self._period_start = now_s
-        self._ticks = self._received = self._rejected = 0
+        self._ticks = self._received = self._dropped = self._rejected = 0
         self._period_max[:] = 0.0
         return level, message, values
 

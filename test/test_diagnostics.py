@@ -120,8 +120,14 @@ def test_tick_slower_than_the_input_period_warns():
     monitor.tick(2.9, [0.0, 0.0, 0.0, 0.0, 60.0], WORLD_STATS)  # 20 inputs in 1 s: 50 ms
     level, message, _ = monitor.report(3.0, input_timeout_s=5.0)
     assert level == WARN and 'longer than the input period' in message
-    monitor.tick(3.5, [0.0, 0.0, 0.0, 0.0, 150.0], WORLD_STATS)  # a timer ticking at 10 Hz
-    level, message, _ = monitor.report(4.0, input_timeout_s=5.0, tick_period_s=0.1)
+    monitor.received()
+    monitor.received()
+    monitor.dropped(18)  # 20 inputs sent in 1 s, 18 of them overwritten before a tick
+    monitor.tick(3.9, [0.0, 0.0, 0.0, 0.0, 60.0], WORLD_STATS)
+    level, message, _ = monitor.report(4.0, input_timeout_s=5.0)
+    assert level == WARN and 'input period 50 ms' in message
+    monitor.tick(4.5, [0.0, 0.0, 0.0, 0.0, 150.0], WORLD_STATS)  # a timer ticking at 10 Hz
+    level, message, _ = monitor.report(5.0, input_timeout_s=5.0, tick_period_s=0.1)
     assert level == WARN and 'longer than the input period' in message
 
 

@@ -314,6 +314,8 @@ def test_run_time_parameters(harness):
         result = node.set_parameters([Parameter(name, value=value)])[0]
         assert not result.successful and words in result.reason, (name, result.reason)
     assert node.get_parameter('broad_phase').value == 'auto'
+    assert node.set_parameters([Parameter('octree.max_depth', value=3)])[0].successful
+    assert node.set_parameters([Parameter('octree.leaf_cooldown_ticks', value=0)])[0].successful
 
     # Through the parameter service, as `ros2 param set` does it.
     client = room.peer.create_client(SetParameters, 'collision_node/set_parameters')

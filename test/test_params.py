@@ -204,6 +204,29 @@ def test_default_config_is_the_demo_room(context):
         node.destroy_node()
 
 
+def test_input_qos_can_be_overridden(context, tmp_path):
+    import rclpy
+    from rclpy.qos import HistoryPolicy, ReliabilityPolicy
+    from collision_node.node import CollisionNode
+    path = write_params(tmp_path / 'p.yaml', """
+qos_overrides:
+  /dynamic_poses:
+    subscription:
+      reliability: best_effort
+      depth: 3
+""")
+    rclpy.init(args=['--ros-args', '--params-file', path], context=context,
+               domain_id=DOMAIN_ID)
+    node = CollisionNode(context=context)
+    try:
+        (subscription,) = node.subscriptions
+        assert subscription.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+        assert subscription.qos_profile.depth == 3
+        assert subscription.qos_profile.history == HistoryPolicy.KEEP_LAST
+    finally:
+        node.destroy_node()
+
+
 def test_empty_collider_list_from_yaml(context, tmp_path):
     import rclpy
     from collision_node.node import CollisionNode
