@@ -174,8 +174,9 @@ class CollisionNode(Node):
         now = time.monotonic()
         if now >= self._next_markers_s \
                 and self._markers_publisher.get_subscription_count() > 0:
+            markers_start = time.perf_counter()
             self._publish_markers(message, config, result.contacts)
-            cost = time.perf_counter() - stepped
+            cost = time.perf_counter() - markers_start
             self._next_markers_s = now + max(MARKER_PERIOD_S, MARKER_COST_FACTOR * cost)
         done = time.perf_counter()
 

@@ -16,6 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from collision_node.broadphase import NAMES
 from collision_node.obb import QUATERNION_NORM_TOLERANCE
 from collision_node.world import World
 
@@ -35,7 +36,7 @@ class Spec(NamedTuple):
 
 PARAMETERS = {
     'frame_id': Spec(STRING, 'world', 'frame of all poses; inputs in another frame are rejected'),
-    'broad_phase': Spec(STRING, 'auto', 'brute_force, sphere, octree, ... or auto', True),
+    'broad_phase': Spec(STRING, 'auto', 'one of: ' + ', '.join(NAMES), True),
     'sphere_prefilter': Spec(BOOL, True, 'bounding-sphere test before the SAT', True),
     'octree.max_depth': Spec(INTEGER, 0, '0: chosen from the body count; else a fixed depth',
                              True),
@@ -62,8 +63,8 @@ COLLIDER_PARAMETERS = {  # <name>.<key>; pose and half_extents have no default: 
 COLLIDER_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
 RESERVED_NAMES = frozenset(name.split('.')[0] for name in PARAMETERS) | {
     'qos_overrides', 'use_sim_time', 'start_type_description_service'}
-# A timer faster than this only burns CPU in rclpy's executor (each wake-up costs ~50 µs of
-# Python), and no pose source publishes that fast.
+# Above this a timer mostly wakes the executor to find no new input; a faster pose source is
+# better served by tick_rate_hz 0 (a tick on every input).
 MAX_TICK_RATE_HZ = 1000.0
 POSE_SIZE = 7
 GIVEN_TYPE = re.compile(r"of type '(\w+)', expecting")  # in rclpy's InvalidParameterTypeException
