@@ -1,0 +1,146 @@
+"""Print the node's `collisions` and `/diagnostics` as readable lines.
+
+    collision_monitor                 # a collisions summary every second, each diagnostics status
+    collision_monitor --once          # one collisions message and one status, then exit
+
+Contacts are written ``d3-s1 0.012 m at (x, y, z) n (nx, ny, nz)``: dynamic body 3 (index in
+the PoseArray) touches static collider 1 (index in static_colliders), 12 mm deep, at that
+contact point, with the unit normal from the first body to the second.
+"""
+import argparse
+import sys
+import textwrap
+
+from collision_node.messages import cloud_to_contacts
+from diagnostic_msgs.msg import DiagnosticArray
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
+from rclpy.utilities import remove_ros_args
+from sensor_msgs.msg import PointCloud2
+
+BODY_TYPE_LETTERS = {0: 'd', 1: 's'}  # type 0 = dynamic, 1 = static (DESIGN §3)
+LEVEL_NAMES = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
+LINE_WIDTH = 99
+
+
+def format_contacts(contacts, limit):
+    """Format up to ``limit`` contacts (CLOUD_DTYPE) as one line, then how many are left."""
+    parts = []
+    for contact in contacts[:limit]:
+        parts.append('%s%d-%s%d %.4g m at (%.3f, %.3f, %.3f) n (%.3f, %.3f, %.3f)' % (
+            BODY_TYPE_LETTERS.get(int(contact['type_a']), '?'), contact['id_a'],
+            BODY_TYPE_LETTERS.get(int(contact['type_b']), '?'), contact['id_b'],
+            contact['depth'], contact['x'], contact['y'], contact['z'],
+            contact['normal_x'], contact['normal_y'], contact['normal_z']))
+    if len(contacts) > limit:
+        parts.append('+%d more' % (len(contacts) - limit))
+    return '; '.join(parts)
+
+
+def format_status(status):
+    """Format a DiagnosticStatus as a header line and its key=value pairs wrapped below."""
+    level = LEVEL_NAMES.get(int.from_bytes(status.level, 'little'), repr(status.level))
+    header = '%s %s: %s' % (level, status.name, status.message)
+    pairs = ' '.join('%s=%s' % (item.key, item.value) for item in status.values)
+    body = textwrap.fill(pairs, LINE_WIDTH, initial_indent='    ', subsequent_indent='    ',
+                         break_long_words=False, break_on_hyphens=False)
+    return header + ('\n' + body if body else '')
+
+
+class CollisionMonitor(Node):
+    """Subscribes to collisions and /diagnostics and prints them."""
+
+    def __init__(self, period_s, contact_limit, once):
+        super().__init__('collision_monitor')
+        self.contact_limit = contact_limit
+        self.once = once
+        self.finished = Future()
+        self.clouds_in_period = 0
+        self.latest_cloud = None
+        self.printed_cloud = False
+        self.printed_status = False
+        # Reliable to match the node's outputs; depth 10 because only the latest is shown.
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                         reliability=ReliabilityPolicy.RELIABLE)
+        self.create_subscription(PointCloud2, 'collisions', self.on_collisions, qos)
+        self.create_subscription(DiagnosticArray, '/diagnostics', self.on_diagnostics, qos)
+        if not once:
+            self.create_timer(period_s, self.print_collisions)
+
+    def on_collisions(self, msg):
+        self.latest_cloud = msg
+        self.clouds_in_period += 1
+        if self.once and not self.printed_cloud:
+            self.print_collisions()
+
+    def print_collisions(self):
+        msg = self.latest_cloud
+        if msg is None:
+            return
+        try:
+            contacts = cloud_to_contacts(msg)
+        except ValueError as error:
+            print('collisions: unreadable cloud: %s' % error, flush=True)
+        else:
+            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            line = 'collisions at %.3f in %r: %d pairs, %d msgs since last line' % (
+                stamp, msg.header.frame_id, len(contacts), self.clouds_in_period)
+            if len(contacts):
+                line += ': ' + format_contacts(contacts, self.contact_limit)
+            print(line, flush=True)
+        self.latest_cloud = None
+        self.clouds_in_period = 0
+        self.printed_cloud = True
+        self.check_done()
+
+    def on_diagnostics(self, msg):
+        statuses = msg.status
+        if self.once:
+            statuses = [] if self.printed_status else statuses[:1]
+        for status in statuses:
+            print('diagnostics ' + format_status(status), flush=True)
+            self.printed_status = True
+        self.check_done()
+
+    def check_done(self):
+        if self.once and self.printed_cloud and self.printed_status:
+            if not self.finished.done():
+                self.finished.set_result(True)
+
+
+def parse_arguments(argv):
+    parser = argparse.ArgumentParser(
+        prog='collision_monitor', description=__doc__.split('\n\n')[0],
+        epilog='ROS arguments may follow --ros-args (e.g. -r collisions:=/other).')
+    parser.add_argument('--once', action='store_true',
+                        help='print one collisions message and one diagnostics status, exit')
+    parser.add_argument('--period', type=float, default=1.0, metavar='S',
+                        help='seconds between collisions lines (default: 1)')
+    parser.add_argument('--contacts', type=int, default=5, metavar='N',
+                        help='contacts shown per line (default: 5)')
+    options = parser.parse_args(argv)
+    if not options.period > 0.0:
+        parser.error('--period must be positive, got %s' % options.period)
+    if options.contacts < 0:
+        parser.error('--contacts must not be negative, got %d' % options.contacts)
+    return options
+
+
+def main(args=None):
+    options = parse_arguments(remove_ros_args(args)[1:])
+    rclpy.init(args=args)
+    node = CollisionMonitor(options.period, options.contacts, options.once)
+    try:
+        rclpy.spin_until_future_complete(node, node.finished)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())
