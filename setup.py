@@ -30,6 +30,8 @@ setup(
             'collision_monitor = collision_node.tools.collision_monitor:main',
             'collision_demo = collision_node.tools.demo:main',
             'collision_bench = collision_node.bench:main',
+            'collision_latency = collision_node.latency_bench:main',
+            'collision_soak = collision_node.tools.soak:main',
         ],
     },
 )
