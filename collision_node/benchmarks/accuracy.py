@@ -169,12 +169,19 @@ def measure_modes(scene, dt, truth, phase_name):
     return out, compared
 
 
-def accuracy_rows(scene, ticks, dt, phase_names, budget_s, progress=None):
-    """One row per (broad phase, mode): errors summed over the ticks, median and p99 ms."""
+def accuracy_rows(scene, ticks, dt, phase_names, budget_s, progress=None, skip=None):
+    """One row per (broad phase, mode): errors summed over the ticks, median and p99 ms.
+
+    ``skip(name)`` may give a reason not to run a phase (then one row says so).
+    """
     truth = ground_truth(scene, ticks, dt, budget_s)
     true_pairs = int(sum(len(keys) for keys in truth))
     rows = []
     for name in phase_names:
+        reason = skip and skip(name)
+        if reason:
+            rows.append(dict(_ids(scene, name, None, len(truth), true_pairs), skipped=reason))
+            continue
         if progress:
             progress('  accuracy %s n=%d %s' % (scene.name, _bodies(scene), name))
         try:
