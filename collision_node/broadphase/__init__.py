@@ -12,13 +12,18 @@ holds:
     Called every tick; dynamic boxes are rows ``[n_static, n_static + n_dynamic)``.
     ``pairs`` is an (P, 2) int64 array of row indices: column 0 is a dynamic box, column 1 a
     static box or a dynamic box with a larger row; no pair twice, no static-static pair. It
-    holds at least every pair whose AABBs overlap. ``compared`` counts the pair comparisons
+    holds at least every pair whose AABBs overlap (``sphere``: whose bounding spheres
+    overlap; both contain every pair of touching boxes). ``compared`` counts the pair comparisons
     the phase made (the seeds' "compared" column). The array stays valid until the next call.
 """
 from typing import NamedTuple
 
 from collision_node.broadphase.brute_force import BruteForce
+from collision_node.broadphase.grid import Grid
+from collision_node.broadphase.kd_tree import KdTreePhase
+from collision_node.broadphase.octree import Octree
 from collision_node.broadphase.sphere import Sphere
+from collision_node.broadphase.sweep_and_prune import SweepAndPrune
 
 
 class Settings(NamedTuple):
@@ -28,7 +33,8 @@ class Settings(NamedTuple):
     octree_leaf_cooldown_ticks: int = 15  # ticks an emptied leaf lives before it is dropped
 
 
-BROAD_PHASES = {phase.name: phase for phase in (BruteForce, Sphere)}
+BROAD_PHASES = {phase.name: phase for phase in (BruteForce, Sphere, Octree, KdTreePhase,
+                                                SweepAndPrune, Grid)}
 NAMES = tuple(BROAD_PHASES) + ('auto',)
 
 

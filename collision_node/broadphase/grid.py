@@ -1,0 +1,165 @@
+"""Uniform grid: boxes binned by hashed cell keys, dynamic boxes re-binned every tick.
+
+Algorithm. Space is cut into cubic cells of side ``GRID_CELL_FACTOR`` × the mean AABB side
+(of the static or the dynamic boxes, whichever is larger). The static boxes are entered in a
+:class:`~.cell_table.CellTable` once; every tick the dynamic boxes are entered in a second
+table on the same lattice with the same number of buckets, by a counting sort on hashed cell
+keys (O(D + entries), no comparison sort, no allocation once the arrays have grown). A cell
+lands in the same bucket of both tables, so one pass over the dynamic buckets finds every
+pair: dynamic entries of a bucket against each other and against the static entries of the
+same bucket, a pair counted only in its first shared cell. Boxes spanning more than
+``MAX_CELLS_PER_BODY`` cells are compared with everything instead.
+
+The static table is rebuilt only when the dynamic sizes drift by more than
+``STATIC_RESIZE_RATIO`` from those it was sized for, or when the dynamic entries outgrow its
+buckets. Without static boxes the lattice follows the dynamic boxes every tick.
+
+Speed comes from memory order: boxes are entered in the order of the previous tick's table
+(neighbours together), buckets are hashed per block of cells (neighbouring cells share cache
+lines), both tables are read sequentially bucket by bucket, each entry carries its AABB, and
+the pair test has no branches.
+
+Invariants: the cell mapping is monotone, so boxes whose AABBs overlap have intersecting
+cell ranges and meet in their first shared cell, in which both are entered; the lattice is
+unbounded (hashed keys, clamped at ±2**20 cells), so there is no domain to leave.
+
+When to use: many bodies of similar size, anywhere in space (uniform, clustered or flying
+apart: the hash has no domain and the cell side follows the body size). It degrades when sizes
+differ by orders of magnitude (the cell side follows the mean) and when many bodies share one
+cell (all at one point: brute force within the cell).
+"""
+import numpy as np
+
+from collision_node._jit import kernel
+from collision_node.broadphase.cell_table import (
+    AUTO_SHIFT, bucket_start, BUCKETS_PER_ENTRY, build_table, empty_table, overlap_across,
+    shift_for, spatial_order)
+from collision_node.broadphase.cells import (
+    ALL_FIRST, make_lattice, mean_side_and_center, pairs_with_all_dynamic, pairs_with_all_static)
+from collision_node.broadphase.pair_buffer import emit, emit_if, PairBuffer
+
+# Cell side / mean AABB side. Measured on uniform and seed scenes (README, "Broad phases").
+GRID_CELL_FACTOR = 1.5
+# The static table is rebuilt when the cell side the dynamic sizes ask for differs from its
+# own by more than this factor, or when the dynamic entries exceed its buckets this many times
+# over (load factor 2 instead of 1 / BUCKETS_PER_ENTRY): both are rare, and the margins stop
+# a scene near a threshold from rebuilding every tick.
+STATIC_RESIZE_RATIO = 4.0
+MAX_DYNAMIC_LOAD = 2.0
+
+
+class Grid:
+    """Hashed uniform grid; static table built once, dynamic table every tick."""
+
+    name = 'grid'
+
+    def __init__(self, settings=None):
+        self._buffer = PairBuffer()
+        self._dynamic = empty_table()
+        self._static = empty_table()
+        self._static_lattice = None   # None: static table to be built at the next tick
+        self._static_side = 0.0       # the cell side the static table was built with
+        self._static_mean_side = 0.0
+        self._order = np.zeros(0, np.int64)  # dynamic rows, neighbours together
+        self._order_of = (0, 0)  # (n_static, n_dynamic) the order was made for
+        self.stats = {'static_builds': 0}
+
+    def set_static(self, boxes, n_static):
+        self._static_mean_side = mean_side_and_center(boxes.aabbs, 0, n_static)[0]
+        self._static_lattice = None  # built at the next tick, when dynamic sizes are known
+
+    def find_pairs(self, boxes, n_static, n_dynamic):
+        aabbs = boxes.aabbs
+        n_total = n_static + n_dynamic
+        if self._order_of != (n_static, n_dynamic):  # bodies came or went: start afresh
+            self._order = np.arange(n_static, n_total)
+            self._order_of = (n_static, n_dynamic)
+        side, center = mean_side_and_center(aabbs, n_static, n_total)
+        if n_static == 0:
+            self._fill_dynamic(aabbs, n_static, n_dynamic,
+                               make_lattice(center, GRID_CELL_FACTOR * side), AUTO_SHIFT)
+        else:
+            wanted_side = GRID_CELL_FACTOR * max(self._static_mean_side, side)
+            if self._static_lattice is None or \
+                    not _within_ratio(wanted_side, self._static_side, STATIC_RESIZE_RATIO):
+                self._build_static(aabbs, n_static, wanted_side, 0)
+            shift = self._static.sizes[3]
+            self._fill_dynamic(aabbs, n_static, n_dynamic, self._static_lattice, shift)
+            entries = self._dynamic.sizes[0]
+            if entries > MAX_DYNAMIC_LOAD * self._static.sizes[1]:
+                self._build_static(aabbs, n_static, wanted_side, entries)
+                self._fill_dynamic(aabbs, n_static, n_dynamic, self._static_lattice,
+                                   self._static.sizes[3])
+        return self._buffer.fill(_grid_pairs, aabbs, n_static, n_total, self._dynamic,
+                                 self._static, self._order)
+
+    def _fill_dynamic(self, aabbs, n_static, n_dynamic, lattice, shift):
+        self._dynamic = build_table(self._dynamic, lattice, aabbs, self._order, n_dynamic,
+                                    n_static, shift)
+
+    def _build_static(self, aabbs, n_static, side, dynamic_entries):
+        """Build the static table with buckets for its entries and ``dynamic_entries``."""
+        self._static_side = side
+        self._static_lattice = make_lattice(mean_side_and_center(aabbs, 0, n_static)[1], side)
+        rows = np.arange(n_static)
+        self._static = build_table(self._static, self._static_lattice, aabbs, rows, n_static,
+                                   0)
+        shift = min(self._static.sizes[3], shift_for(BUCKETS_PER_ENTRY * dynamic_entries))
+        if shift != self._static.sizes[3]:
+            self._static = build_table(self._static, self._static_lattice, aabbs, rows,
+                                       n_static, 0, shift)
+        self.stats['static_builds'] += 1
+
+
+def _within_ratio(a, b, ratio):
+    return a <= ratio * b and b <= ratio * a
+
+
+@kernel
+def _grid_pairs(aabbs, n_static, n_total, dynamic, static, order, out):
+    is_big, big_rows, sizes = dynamic.is_big, dynamic.big_rows, dynamic.sizes
+    bucket_end, entry_row, entry_key = dynamic.bucket_end, dynamic.entry_row, dynamic.entry_key
+    entry_first, entry_aabb = dynamic.entry_first, dynamic.entry_aabb
+    static_end, static_row, static_key = static.bucket_end, static.entry_row, static.entry_key
+    static_first, static_aabb = static.entry_first, static.entry_aabb
+    count = 0
+    compared = 0
+    for bucket in range(sizes[1]):
+        end = bucket_end[bucket]
+        start = bucket_start(bucket_end, bucket)
+        if start == end:
+            continue
+        static_start = bucket_start(static_end, bucket) if n_static else 0
+        static_stop = static_end[bucket] if n_static else 0
+        for e in range(start, end):
+            key = entry_key[e]
+            first = entry_first[e]
+            row = entry_row[e]
+            # Only the first shared cell of a pair owns it; tested without branches.
+            for f in range(e + 1, end):
+                owned = (entry_key[f] == key) & ((first | entry_first[f]) == ALL_FIRST)
+                compared += owned
+                other = entry_row[f]
+                count = emit_if(out, count, owned & overlap_across(entry_aabb, e, entry_aabb, f),
+                                min(row, other), max(row, other))
+            for s in range(static_start, static_stop):
+                owned = (static_key[s] == key) & ((first | static_first[s]) == ALL_FIRST)
+                compared += owned
+                count = emit_if(out, count,
+                                owned & overlap_across(entry_aabb, e, static_aabb, s),
+                                row, static_row[s])
+    for i in range(sizes[2]):  # big dynamic boxes: a brute-force row each
+        a = big_rows[i]
+        count, tested = pairs_with_all_dynamic(aabbs, a, n_static, n_total, is_big, out, count)
+        compared += tested
+        count, tested = pairs_with_all_static(aabbs, a, n_static, out, count)
+        compared += tested
+    for i in range(static.sizes[2] if n_static else 0):  # big static boxes: a column each
+        b = static.big_rows[i]
+        for a in range(n_static, n_total):
+            if not is_big[a - n_static]:
+                compared += 1
+                if overlap_across(aabbs, a, aabbs, b):
+                    count = emit(out, count, a, b, n_static)
+    spatial_order(dynamic, order)  # next tick's filling order
+    return count, compared

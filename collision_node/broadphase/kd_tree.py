@@ -1,0 +1,256 @@
+"""k-d tree (paper 001): median splits on the widest axis, each node bounding its boxes.
+
+Algorithm. The boxes are put in an order (``perm``) in which every node of an implicit binary
+tree owns a contiguous range: the root owns all, node k's children 2k+1 and 2k+2 own the two
+halves after its range is partitioned at the median of the box centres along the axis where
+they spread most (quickselect, O(n) per level, O(n log n) in all). A node with at most
+``LEAF_SIZE`` boxes is a leaf. Every node stores the AABB of its boxes, so a box straddling a
+split plane is stored once and never duplicated; this is the k-d tree of the paper with
+bounding intervals instead of cutting planes, which is what makes refitting possible.
+
+A query walks the tree with a fixed-size stack, skipping nodes whose AABB misses the query
+box. Dynamic pairs: box ``perm[p]`` queries the dynamic tree only for positions after ``p``,
+so each pair is met once and whole subtrees at earlier positions are skipped. Static pairs:
+the static tree is built once per static set and only queried, by the dynamic boxes in
+``perm`` order (neighbours after each other, so the nodes they visit stay in cache).
+
+Rebuild or refit. Refitting keeps ``perm`` and recomputes the node AABBs bottom-up (O(n)),
+rebuilding partitions again (O(n log n)). Refitting degrades as boxes move relative to each
+other: node boxes grow and overlap. The tree therefore refits every tick and rebuilds when its
+total node surface area, relative to the root's, has grown by ``REBUILD_AREA_RATIO`` since
+the last build (the surface area is the expected cost of a random query, the SAH). Measured
+numbers for rebuild-every-tick, refit-always and this rule are in the README ("Broad phases").
+
+When to use: scenes of mixed sizes where no cell size suits all boxes, and static scenes with
+few moving bodies (the static tree is built once). The grid is faster on uniform sizes.
+"""
+from typing import NamedTuple
+
+import numpy as np
+
+from collision_node._jit import kernel
+from collision_node.broadphase.cell_table import overlap_across
+from collision_node.broadphase.pair_buffer import emit_if, PairBuffer
+
+LEAF_SIZE = 4           # boxes per leaf: fewer means deeper trees, more means more pair tests
+REBUILD_AREA_RATIO = 1.5  # rebuild when the refitted tree's relative area grew this much
+STACK_SIZE = 128        # depth of a balanced tree over < 2**60 boxes, twice over
+
+
+class KdTree(NamedTuple):
+    """An implicit median-split tree over rows ``perm`` (see the module docstring)."""
+
+    perm: np.ndarray        # (n,) rows, in tree order
+    keys: np.ndarray        # (n,) scratch: split coordinate of perm[i] while building
+    node_start: np.ndarray  # (M,) first position of each node (nodes that exist)
+    node_end: np.ndarray    # (M,) one past its last position; 0 for nodes that do not exist
+    bounds: np.ndarray      # (M, 2, 3) AABB of each node's boxes
+    area: np.ndarray        # (1,) total node surface area / root surface area (after refit)
+
+
+def tree_for(rows):
+    """Make an unbuilt tree over ``rows`` (int64 array)."""
+    n = len(rows)
+    nodes = 1
+    while nodes * LEAF_SIZE < n:  # leaves of a balanced tree, rounded up to a power of two
+        nodes *= 2
+    nodes = 2 * nodes - 1
+    return KdTree(np.array(rows, np.int64), np.zeros(n), np.zeros(nodes, np.int64),
+                  np.zeros(nodes, np.int64), np.zeros((nodes, 2, 3)), np.zeros(1))
+
+
+class KdTreePhase:
+    """Dynamic tree refitted every tick (rebuilt when it degrades), static tree built once."""
+
+    name = 'kd_tree'
+
+    def __init__(self, settings=None, rebuild_ratio=REBUILD_AREA_RATIO):
+        self._rebuild_ratio = rebuild_ratio  # <= 1: rebuild every tick; inf: refit only
+        self._buffer = PairBuffer()
+        self._static = None
+        self._dynamic = None
+        self._dynamic_of = None  # (n_static, n_dynamic) the dynamic tree was made for
+        self._built_area = 0.0
+        self._stack = np.zeros(STACK_SIZE, np.int64)
+        self.stats = {'builds': 0, 'refits': 0}
+
+    def set_static(self, boxes, n_static):
+        self._static = tree_for(np.arange(n_static))
+        build(self._static, boxes.aabbs)
+
+    def find_pairs(self, boxes, n_static, n_dynamic):
+        aabbs = boxes.aabbs
+        tree = self._dynamic
+        if self._dynamic_of != (n_static, n_dynamic):  # bodies came or went
+            tree = self._dynamic = tree_for(np.arange(n_static, n_static + n_dynamic))
+            self._dynamic_of = (n_static, n_dynamic)
+            self._build(aabbs)
+        elif self._rebuild_ratio <= 1.0:
+            self._build(aabbs)
+        else:
+            refit(tree, aabbs)
+            self.stats['refits'] += 1
+            if tree.area[0] > self._rebuild_ratio * self._built_area:
+                self._build(aabbs)
+        return self._buffer.fill(_tree_pairs, tree, self._static, aabbs, n_static,
+                                 self._stack)
+
+    def _build(self, aabbs):
+        build(self._dynamic, aabbs)
+        self._built_area = self._dynamic.area[0]
+        self.stats['builds'] += 1
+
+
+@kernel
+def build(tree, aabbs):
+    """Partition ``tree.perm`` top-down and compute the node AABBs."""
+    perm, keys, node_start, node_end = tree.perm, tree.keys, tree.node_start, tree.node_end
+    n_nodes = len(node_start)
+    node_end[:] = 0
+    node_start[0] = 0
+    node_end[0] = len(perm)
+    for node in range(n_nodes):  # parents before children: heap order is breadth first
+        start, end = node_start[node], node_end[node]
+        if end - start <= LEAF_SIZE or 2 * node + 2 >= n_nodes:
+            continue
+        axis = _widest_axis(aabbs, perm, start, end)
+        for i in range(start, end):
+            keys[i] = aabbs[perm[i], 0, axis] + aabbs[perm[i], 1, axis]
+        middle = (start + end) // 2
+        _select(keys, perm, start, end, middle)
+        node_start[2 * node + 1], node_end[2 * node + 1] = start, middle
+        node_start[2 * node + 2], node_end[2 * node + 2] = middle, end
+    refit(tree, aabbs)
+
+
+@kernel
+def refit(tree, aabbs):
+    """Recompute every node's AABB bottom-up for the boxes' current positions."""
+    perm, node_start, node_end, bounds = tree.perm, tree.node_start, tree.node_end, \
+        tree.bounds
+    n_nodes = len(node_start)
+    area = 0.0
+    for node in range(n_nodes - 1, -1, -1):
+        start, end = node_start[node], node_end[node]
+        if end <= start:
+            continue
+        left = 2 * node + 1
+        if left < n_nodes and node_end[left] > node_start[left]:  # internal node
+            for k in range(3):
+                bounds[node, 0, k] = min(bounds[left, 0, k], bounds[left + 1, 0, k])
+                bounds[node, 1, k] = max(bounds[left, 1, k], bounds[left + 1, 1, k])
+        else:
+            for k in range(3):
+                bounds[node, 0, k] = np.inf
+                bounds[node, 1, k] = -np.inf
+            for i in range(start, end):
+                for k in range(3):
+                    bounds[node, 0, k] = min(bounds[node, 0, k], aabbs[perm[i], 0, k])
+                    bounds[node, 1, k] = max(bounds[node, 1, k], aabbs[perm[i], 1, k])
+        area += _surface(bounds, node)
+    root = _surface(bounds, 0)
+    tree.area[0] = area / root if root > 0.0 else 1.0
+
+
+@kernel
+def _surface(bounds, node):
+    dx = bounds[node, 1, 0] - bounds[node, 0, 0]
+    dy = bounds[node, 1, 1] - bounds[node, 0, 1]
+    dz = bounds[node, 1, 2] - bounds[node, 0, 2]
+    return dx * dy + dy * dz + dz * dx
+
+
+@kernel
+def _widest_axis(aabbs, perm, start, end):
+    low = np.full(3, np.inf)
+    high = np.full(3, -np.inf)
+    for i in range(start, end):
+        for k in range(3):
+            center = aabbs[perm[i], 0, k] + aabbs[perm[i], 1, k]
+            low[k] = min(low[k], center)
+            high[k] = max(high[k], center)
+    spread = high - low
+    return int(np.argmax(spread))
+
+
+@kernel
+def _select(keys, perm, start, end, nth):
+    """Put the element of sorted rank ``nth`` of keys/perm[start:end] at position ``nth``.
+
+    Smaller-or-equal keys end up before it, greater-or-equal ones after (Hoare quickselect).
+    """
+    low, high = start, end - 1
+    while low < high:
+        middle = (low + high) // 2
+        # median of three as pivot: robust on already sorted input (refits keep order)
+        a, b, c = keys[low], keys[middle], keys[high]
+        pivot = max(min(a, b), min(max(a, b), c))
+        i, j = low, high
+        while i <= j:
+            while keys[i] < pivot:
+                i += 1
+            while keys[j] > pivot:
+                j -= 1
+            if i <= j:
+                keys[i], keys[j] = keys[j], keys[i]
+                perm[i], perm[j] = perm[j], perm[i]
+                i += 1
+                j -= 1
+        if nth <= j:
+            high = j
+        elif nth >= i:
+            low = i
+        else:
+            return
+
+
+@kernel
+def _tree_pairs(tree, static, aabbs, n_static, stack, out):
+    perm, node_start, node_end, bounds = tree.perm, tree.node_start, tree.node_end, \
+        tree.bounds
+    count = 0
+    compared = 0
+    for p in range(len(perm)):
+        a = perm[p]
+        count, tested = _query(aabbs, a, p + 1, perm, node_start, node_end, bounds, stack, out,
+                               count, True)
+        compared += tested
+    if n_static:
+        s_perm, s_start, s_end, s_bounds = static.perm, static.node_start, static.node_end, \
+            static.bounds
+        for p in range(len(perm)):
+            count, tested = _query(aabbs, perm[p], 0, s_perm, s_start, s_end, s_bounds, stack,
+                                   out, count, False)
+            compared += tested
+    return count, compared
+
+
+@kernel
+def _query(aabbs, a, first, perm, node_start, node_end, bounds, stack, out, count, dynamic):
+    """Pairs of box ``a`` with the tree's boxes at positions >= ``first``."""
+    compared = 0
+    top = 0
+    stack[0] = 0
+    top = 1
+    n_nodes = len(node_start)
+    while top:
+        top -= 1
+        node = stack[top]
+        end = node_end[node]
+        if end <= first or not overlap_across(bounds, node, aabbs, a):
+            continue
+        left = 2 * node + 1
+        if left < n_nodes and node_end[left] > node_start[left]:
+            stack[top] = left
+            stack[top + 1] = left + 1
+            top += 2
+            continue
+        for q in range(max(node_start[node], first), end):
+            b = perm[q]
+            compared += 1
+            hit = overlap_across(aabbs, a, aabbs, b)
+            if dynamic:
+                count = emit_if(out, count, hit, min(a, b), max(a, b))
+            else:
+                count = emit_if(out, count, hit, a, b)
+    return count, compared
