@@ -4,12 +4,12 @@ Two references, both independent of the phase under test: the World with ``brute
 (the final contact ids must be identical) and a numpy all-pairs AABB test written from the
 definition (the candidates must contain every overlapping pair, once, in interface order).
 """
-import numpy as np
-import pytest
-
 from broadphase_reference import (
     contact_ids, flying_out, poses, random_quaternions, reference_overlaps, Scene,
     sorted_pairs, uniform)
+import numpy as np
+import pytest
+
 from collision_node import World
 from collision_node.broadphase import make_broad_phase, NAMES, Settings
 from collision_node.broadphase.auto import Auto, SWITCH_AFTER_TICKS
