@@ -4,157 +4,29 @@ The node and a test node share one executor that the test spins until a conditio
 a sleep that assumes a timing). Expected contacts come from hand-computed depths and normals of
 axis-aligned boxes, and from a brute-force World for the larger scene.
 """
-import itertools
 import os
 import random
-import time
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import Pose, PoseArray
+from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 import pytest
 from rcl_interfaces.srv import SetParameters
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import PointCloud2
-from visualization_msgs.msg import Marker, MarkerArray
+from ros_helpers import (check_room_contacts, count_ticks_and_drops, EXPECTED, HALF, Harness,
+                         make_context, POSITIONS, room_overrides, room_poses, values)
+from visualization_msgs.msg import Marker
 
 from collision_node import scenes
 from collision_node.cdr import serialize_pose_array
 from collision_node.messages import cloud_to_contacts
-from collision_node.node import CollisionNode
-from collision_node.world import DYNAMIC, STATIC, World
+from collision_node.world import DYNAMIC, World
 
 DOMAIN_ID = random.Random(os.getpid() + 1).randint(1, 200)
-TIMEOUT_S = 20.0
-RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-INPUT = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-# Axis-aligned scene, all dynamic boxes with half extents 0.1:
-COLLIDERS = {  # name: (pose, half extents); ids 0, 1, 2 in this order
-    'floor': ([0.0, 0.0, -0.5, 0.0, 0.0, 0.0, 1.0], [5.0, 5.0, 0.5]),    # top at z = 0
-    'wall': ([2.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], [0.1, 5.0, 1.0]),      # x in [1.9, 2.1]
-    'crate': ([-2.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0], [0.5, 0.5, 0.5]),    # x in [-2.5, -1.5]
-}
-POSITIONS = [
-    (0.0, 0.0, 0.08),   # 0: 0.02 into the floor
-    (1.85, 0.0, 1.0),   # 1: 0.05 into the wall, 0.03 into body 2
-    (1.68, 0.0, 1.0),   # 2
-    (0.0, 0.0, 3.0),    # 3: free
-    (-1.45, 0.0, 0.5),  # 4: 0.05 into the crate
-]
-# (id_a, type_b, id_b, depth, normal from A to B), in the cloud's order (id_a, type_b, id_b).
-EXPECTED = [
-    (0, STATIC, 0, 0.02, (0.0, 0.0, -1.0)),
-    (1, DYNAMIC, 2, 0.03, (-1.0, 0.0, 0.0)),
-    (1, STATIC, 1, 0.05, (1.0, 0.0, 0.0)),
-    (4, STATIC, 2, 0.05, (-1.0, 0.0, 0.0)),
-]
-HALF = 0.1
-FLOAT32_TOLERANCE = 1e-6  # m: the cloud holds float32; these coordinates are below 3 m
-
-
-def room_overrides(**extra):
-    overrides = {'static_colliders': list(COLLIDERS), 'dynamic.half_extents': [HALF] * 3,
-                 'diagnostic_updater.period': 0.1, 'input_timeout_s': 0.0}
-    for name, (pose, extents) in COLLIDERS.items():
-        overrides['%s.pose' % name] = pose
-        overrides['%s.half_extents' % name] = extents
-    overrides.update(extra)
-    return overrides
-
-
-def room_poses(positions=POSITIONS):
-    poses = np.zeros((len(positions), 7))
-    poses[:, :3] = positions
-    poses[:, 6] = 1.0
-    return poses
-
-
-class Harness:
-    """A CollisionNode and a test node that talks to it, spun by the test."""
-
-    counter = itertools.count()
-
-    def __init__(self, context, **overrides):
-        namespace = 'case%d' % next(self.counter)  # no stray message from an earlier case
-        self.node = CollisionNode(
-            context=context, namespace=namespace,
-            parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
-        self.peer = rclpy.create_node('tester', namespace=namespace, context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.peer)
-        self.poses = self.peer.create_publisher(PoseArray, 'dynamic_poses', INPUT)
-        self.clouds, self.statuses, self.marker_arrays = [], [], []
-        self.peer.create_subscription(PointCloud2, 'collisions', self.clouds.append, RELIABLE)
-        self.peer.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
-                                      RELIABLE)
-        self.markers = None
-        self.wait_for(lambda: self.poses.get_subscription_count() == 1
-                      and self.peer.count_publishers('collisions') == 1)
-
-    def _on_diagnostics(self, message):
-        self.statuses.extend(status for status in message.status
-                             if status.name == 'collision_node: collision_check')
-
-    def subscribe_markers(self):
-        self.markers = self.peer.create_subscription(
-            MarkerArray, 'collision_node/markers', self.marker_arrays.append, RELIABLE)
-
-    def wait_for(self, condition, what='condition'):
-        deadline = time.monotonic() + TIMEOUT_S
-        while not condition():
-            assert time.monotonic() < deadline, 'timed out waiting for %s' % what
-            self.executor.spin_once(timeout_sec=0.01)
-
-    def publish(self, poses, sec, frame_id=''):
-        message = PoseArray()
-        message.header.stamp.sec, message.header.frame_id = sec, frame_id
-        message.poses = [_pose(row) for row in np.asarray(poses).tolist()]
-        self.poses.publish(message)
-
-    def answer(self, sec):
-        """Wait for the cloud stamped ``sec``; no other cloud may come before it."""
-        self.wait_for(lambda: self.clouds, 'collisions stamped %d' % sec)
-        cloud = self.clouds.pop(0)
-        assert cloud.header.stamp.sec == sec
-        return cloud
-
-    def status(self, condition=lambda status: True):
-        """Wait for a diagnostics status that meets ``condition`` and return it."""
-        def found():
-            while self.statuses:
-                status = self.statuses.pop(0)
-                if condition(status):
-                    self.found = status
-                    return True
-            return False
-        self.wait_for(found, 'a diagnostics status')
-        return self.found
-
-    def close(self):
-        self.executor.shutdown()
-        self.peer.destroy_node()
-        self.node.destroy_node()
-
-
-def _pose(row):
-    pose = Pose()
-    pose.position.x, pose.position.y, pose.position.z = row[:3]
-    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = row[3:]
-    return pose
-
-
-def values(status):
-    return {item.key: item.value for item in status.values}
 
 
 @pytest.fixture(scope='module')
 def context():
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    context = make_context(DOMAIN_ID)
     yield context
     context.try_shutdown()
 
@@ -169,29 +41,6 @@ def harness(context):
     yield make
     for harness in made:
         harness.close()
-
-
-def check_room_contacts(cloud, expected, poses):
-    assert cloud.header.frame_id == 'world'
-    assert (cloud.height, cloud.width) == (1, len(expected))
-    contacts = cloud_to_contacts(cloud)
-    assert [(c['id_a'], c['type_b'], c['id_b']) for c in contacts] == [
-        (id_a, type_b, id_b) for id_a, type_b, id_b, _, _ in expected]
-    assert (contacts['type_a'] == DYNAMIC).all()
-    for contact, (id_a, type_b, id_b, depth, normal) in zip(contacts, expected):
-        assert contact['depth'] == pytest.approx(depth, abs=FLOAT32_TOLERANCE)
-        np.testing.assert_allclose([contact['normal_x'], contact['normal_y'],
-                                    contact['normal_z']], normal, atol=FLOAT32_TOLERANCE)
-        # The contact point lies where the two (axis-aligned) boxes overlap.
-        low_a, high_a = poses[id_a, :3] - HALF, poses[id_a, :3] + HALF
-        if type_b == DYNAMIC:
-            low_b, high_b = poses[id_b, :3] - HALF, poses[id_b, :3] + HALF
-        else:
-            center, extents = (np.array(v) for v in list(COLLIDERS.values())[id_b])
-            low_b, high_b = center[:3] - extents, center[:3] + extents
-        point = np.array([contact['x'], contact['y'], contact['z']])
-        assert (point >= np.maximum(low_a, low_b) - FLOAT32_TOLERANCE).all()
-        assert (point <= np.minimum(high_a, high_b) + FLOAT32_TOLERANCE).all()
 
 
 def test_contacts_stamp_frame_and_diagnostics(harness):
@@ -329,21 +178,6 @@ def test_run_time_parameters(harness):
     room.publish(poses, sec=3)
     check_room_contacts(room.answer(3), EXPECTED, poses)
     assert values(room.status(lambda s: values(s)['ticks'] != '0'))['broad_phase'] == 'sphere'
-
-
-def count_ticks_and_drops(room, published):
-    """Wait until every published input was either checked or counted as dropped."""
-    ticks, dropped = 0, 0
-
-    def all_counted():
-        nonlocal ticks, dropped
-        while room.statuses:
-            found = values(room.statuses.pop(0))
-            ticks += int(found['ticks'])
-            dropped = int(found['dropped_inputs'])
-        return ticks + dropped == published
-    room.wait_for(all_counted, 'ticks + dropped_inputs == %d' % published)
-    return ticks, dropped
 
 
 def test_timer_mode_checks_the_newest_input(harness):

@@ -3,11 +3,10 @@ import math
 import os
 import pathlib
 import random
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from ros_helpers import BAD_YAML, GOOD_YAML, run_node, write_params
 
 from collision_node import params
 from collision_node.params import ParameterError
@@ -132,41 +131,6 @@ def context():
     context.try_shutdown()
 
 
-def write_params(path, body):
-    path.write_text('collision_node:\n  ros__parameters:\n' + ''.join(
-        '    %s\n' % line for line in body.strip('\n').split('\n')))
-    return str(path)
-
-
-GOOD_YAML = """
-frame_id: map
-broad_phase: brute_force
-static_colliders: [table, shelf]
-dynamic:
-  half_extents: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
-table:
-  pose: [0.0, 0.0, 0.4, 0.0, 0.0, 0.0, 1.0]
-  half_extents: [0.6, 0.4, 0.02]
-shelf:
-  pose: [1.2, 0.0, 1.0, 0.0, 0.0, 0.3826834, 0.9238795]
-  half_extents: [0.2, 0.5, 1.0]
-  enabled: false
-"""
-BAD_YAML = {  # name the error must name: the params file
-    'shelf.half_extents': GOOD_YAML.replace('[0.2, 0.5, 1.0]', '[0.2, -0.5, 1.0]'),
-    'table.pose': GOOD_YAML.replace('0.0, 0.4, 0.0, 0.0, 0.0, 1.0]', '0.0, 0.4, 0.0, 0.0, 1.0]'),
-    'shelf.pose': GOOD_YAML.replace('  pose: [1.2, 0.0, 1.0, 0.0, 0.0, 0.3826834, 0.9238795]\n',
-                                    ''),
-    'broad_phase': GOOD_YAML.replace('brute_force', 'bvh'),
-    'static_colliders': GOOD_YAML.replace('[table, shelf]', '[table, table]'),
-    'tick_rate_hz': GOOD_YAML + 'tick_rate_hz: -5.0\n',
-    'max_bodies': GOOD_YAML + 'max_bodies: 0\n',
-    # An integer where a double is declared: rclpy's type check, reported with the name.
-    'input_timeout_s': GOOD_YAML + 'input_timeout_s: 2\n',
-    'dynamic.half_extents': GOOD_YAML.replace('0.5, 0.6]', '0.5]'),
-}
-
-
 def test_params_file_reaches_the_node(context, tmp_path):
     import rclpy
     from collision_node.node import CollisionNode
@@ -264,16 +228,8 @@ def test_bad_overrides_stop_the_node(context):
             Parameter('box.half_extents', value=[1.0, 1.0, 1.0])])
 
 
-def run_node(params_file):
-    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID),
-               PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]))
-    return subprocess.run(
-        [sys.executable, '-m', 'collision_node.node', '--ros-args', '--params-file', params_file],
-        cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
-
-
 def test_process_exits_with_the_parameter_named(tmp_path):
-    done = run_node(write_params(tmp_path / 'bad.yaml', BAD_YAML['shelf.half_extents']))
+    done = run_node(DOMAIN_ID, write_params(tmp_path / 'bad.yaml', BAD_YAML['shelf.half_extents']))
     assert done.returncode == 2
     assert "parameter 'shelf.half_extents'" in done.stderr
     assert 'Traceback' not in done.stderr
@@ -281,7 +237,8 @@ def test_process_exits_with_the_parameter_named(tmp_path):
 
 def test_process_exits_on_an_unparsable_params_file(tmp_path):
     # rcl itself refuses a list mixing integers and doubles, before any node exists.
-    done = run_node(write_params(tmp_path / 'bad.yaml', 'dynamic:\n  half_extents: [1, 0.5, 1]'))
+    done = run_node(DOMAIN_ID, write_params(tmp_path / 'bad.yaml',
+                                            'dynamic:\n  half_extents: [1, 0.5, 1]'))
     assert done.returncode == 2
     assert 'Sequence should be of same type' in done.stderr
     assert 'Traceback' not in done.stderr
