@@ -167,6 +167,13 @@ class CollisionNode(Node):
             # that body left out: a partial answer would silently report it as free.
             self._reject('dynamic %s' % error)
             return
+        except (ArithmeticError, RuntimeError) as error:
+            # Finite poses near the float64 limit (|x| ~ 1e308, e.g. a flipped exponent bit)
+            # overflow inside a broad phase or the SAT. One refused input costs less than
+            # the node; the World's next step starts afresh from its input.
+            self._reject('dynamic poses the World cannot check (%s: %s)'
+                         % (type(error).__name__, error))
+            return
         stepped = time.perf_counter()
 
         self._collisions_publisher.publish(serialize_collisions(
