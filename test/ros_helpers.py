@@ -82,13 +82,19 @@ def make_context(domain_id):
 class Harness:
     """A CollisionNode and a test node that talks to it, spun by the test.
 
-    ``input_qos`` is the QoS of the tester's pose publisher.
+    ``input_depth`` deepens the node's input queue (its ``qos_overrides`` parameter) and the
+    tester's publisher alike, so that a burst of that many inputs reaches the node whole.
     """
 
     counter = itertools.count()
 
-    def __init__(self, context, input_qos=INPUT, **overrides):
+    def __init__(self, context, input_depth=None, **overrides):
         self.namespace = 'case%d' % next(self.counter)  # no stray message from an earlier case
+        input_qos = INPUT
+        if input_depth is not None:
+            overrides['qos_overrides./%s/dynamic_poses.subscription.depth'
+                      % self.namespace] = input_depth
+            input_qos = QoSProfile(depth=input_depth, reliability=ReliabilityPolicy.RELIABLE)
         self.node = CollisionNode(
             context=context, namespace=self.namespace,
             parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
