@@ -371,6 +371,20 @@ def test_auto_uses_brute_force_for_small_scenes_and_does_not_flap():
     assert world._phase.switches == 1
 
 
+@pytest.mark.parametrize('make_scene, expected', [
+    (lambda: uniform(60), 'brute_force'), (lambda: uniform(400), 'sweep_and_prune'),
+    (lambda: one_point_scene(1500), 'sweep_and_prune'), (lambda: uniform(3000), 'grid')])
+def test_auto_picks_by_body_count_and_spread(make_scene, expected):
+    scene = make_scene()
+    world = World(broad_phase='auto')
+    world.set_static(scene.static_poses, scene.static_half_extents)
+    for tick in range(SWITCH_AFTER_TICKS + 2):
+        dynamic_poses, extents = scene.dynamic(tick)
+        shifted = dynamic_poses + [1e-6 * tick, 0, 0, 0, 0, 0, 0]  # never the same input
+        result = world.step(shifted, extents)
+    assert result.stats['broad_phase'] == expected
+
+
 def test_auto_reports_the_phase_that_ran_with_the_same_contacts():
     scene = uniform(2000)
     results = dict(run_worlds(scene, ['auto', 'brute_force'], range(12)))

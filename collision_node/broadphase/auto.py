@@ -1,24 +1,33 @@
 """``auto``: picks the broad phase per tick from the body count and spread, with hysteresis.
 
-Rule, from the measurements in the README ("Broad phases"): brute force while the scene is
-small (fewer than ``SMALL_SCENE`` bodies: its loop has no set-up cost and beats every
-structure there) or packed (the dynamic boxes' bounding box is less than ``PACKED_SPREAD``
-mean box sides across: every box meets every other, so no structure can prune anything);
-otherwise the hashed uniform grid, the fastest phase measured on every larger scene.
+Rule, from the measurements in the README ("Broad phases"):
 
-Hysteresis: the thresholds are crossed only with a margin (``MARGIN`` above on the way up,
-below on the way down), and a new choice must hold for ``SWITCH_AFTER_TICKS`` ticks in a row
-before it is taken, so a scene hovering at a threshold does not flap between phases (each
-switch throws away the structure of the phase left, e.g. the grid's static table).
+* brute force while it has fewer than ``BRUTE_FORCE_WORK`` pairs to compare (D·S + D(D-1)/2,
+  about 60 bodies): its loop has no set-up cost and beats every structure there;
+* sweep and prune below ``GRID_BODIES`` bodies, and for packed scenes: when the cube around
+  the dynamic boxes holds less than ``PACKED_VOLUME`` mean-box-side cubes per box (all bodies
+  near one point), every box overlaps many others, cells and trees cannot prune, and the
+  sorted sweep, which writes its pairs in order, is the fastest (3-4x the grid's speed there);
+* the hashed uniform grid otherwise: the fastest measured on every larger scene.
+
+Hysteresis: each threshold is moved by ``MARGIN`` away from the phase in use (a scene must
+pass it clearly to leave), and a new choice must hold for ``SWITCH_AFTER_TICKS`` ticks in a row
+before it is taken, so a scene hovering at a threshold does not flap (each switch throws away
+the structures of the phase left, e.g. the grid's static table).
 """
 from collision_node._jit import kernel
 from collision_node.broadphase.brute_force import BruteForce
 from collision_node.broadphase.grid import Grid
+from collision_node.broadphase.sweep_and_prune import SweepAndPrune
 
-SMALL_SCENE = 256      # bodies (static + dynamic): brute force below, measured crossover
-PACKED_SPREAD = 3.0    # bounding box / mean box side of the dynamic boxes: brute force below
-MARGIN = 1.25          # thresholds are passed by this factor before a switch is considered
-SWITCH_AFTER_TICKS = 8  # ticks a new choice must hold before it is taken
+BRUTE_FORCE_WORK = 1500   # pair comparisons: brute force below (measured crossover ~1,000-2,000)
+GRID_BODIES = 700         # bodies: sweep and prune below, the grid above (crossover 500-1,000)
+PACKED_VOLUME = 0.25      # (extent / mean side)^3 per dynamic box below which a scene is packed
+MARGIN = 1.25             # thresholds move by this factor away from the phase in use
+SWITCH_AFTER_TICKS = 8    # ticks a new choice must hold before it is taken
+
+PHASES = {phase.name: phase for phase in (BruteForce, SweepAndPrune, Grid)}
+SIMPLER = {BruteForce.name: 0, SweepAndPrune.name: 1, Grid.name: 2}  # threshold order
 
 
 class Auto:
@@ -57,17 +66,24 @@ class Auto:
 
     def _choose(self, aabbs, n_static, n_dynamic):
         """Name the phase the scene asks for, thresholds moved away from the current one."""
-        up = self._current == BruteForce.name  # leaving brute force needs the higher bar
-        margin = MARGIN if up else 1.0 / MARGIN
-        if n_static + n_dynamic < SMALL_SCENE * margin:
+        def below(value, threshold, simpler_than):
+            """``value < threshold``, the threshold raised while a simpler phase runs."""
+            current_is_simpler = SIMPLER[self._current] < SIMPLER[simpler_than]
+            return value < threshold * (MARGIN if current_is_simpler else 1.0 / MARGIN)
+
+        work = n_dynamic * n_static + n_dynamic * (n_dynamic - 1) // 2
+        if below(work, BRUTE_FORCE_WORK, SweepAndPrune.name):
             return BruteForce.name
-        if spread_in_box_sides(aabbs, n_static, n_static + n_dynamic) < PACKED_SPREAD * margin:
-            return BruteForce.name
+        if below(n_static + n_dynamic, GRID_BODIES, Grid.name):
+            return SweepAndPrune.name
+        spread = spread_in_box_sides(aabbs, n_static, n_static + n_dynamic)
+        if below(spread ** 3 / n_dynamic, PACKED_VOLUME, Grid.name):
+            return SweepAndPrune.name
         return Grid.name
 
     def _phase(self, name):
         if name not in self._phases:
-            phase = (BruteForce if name == BruteForce.name else Grid)(self._settings)
+            phase = PHASES[name](self._settings)
             if self._static is not None:
                 phase.set_static(*self._static)
             self._phases[name] = phase
@@ -77,23 +93,16 @@ class Auto:
 @kernel
 def spread_in_box_sides(aabbs, first, stop):
     """Largest extent of the boxes' common bounding box, in units of their mean side."""
-    low0 = low1 = low2 = 0.0
-    high0 = high1 = high2 = 0.0
+    low = aabbs[first, 0].copy()
+    high = aabbs[first, 1].copy()
     side = 0.0
     for row in range(first, stop):
-        if row == first:
-            low0, low1, low2 = aabbs[row, 0, 0], aabbs[row, 0, 1], aabbs[row, 0, 2]
-            high0, high1, high2 = aabbs[row, 1, 0], aabbs[row, 1, 1], aabbs[row, 1, 2]
-        low0 = min(low0, aabbs[row, 0, 0])
-        low1 = min(low1, aabbs[row, 0, 1])
-        low2 = min(low2, aabbs[row, 0, 2])
-        high0 = max(high0, aabbs[row, 1, 0])
-        high1 = max(high1, aabbs[row, 1, 1])
-        high2 = max(high2, aabbs[row, 1, 2])
         for k in range(3):
+            low[k] = min(low[k], aabbs[row, 0, k])
+            high[k] = max(high[k], aabbs[row, 1, k])
             side += aabbs[row, 1, k] - aabbs[row, 0, k]
-    extent = max(high0 - low0, high1 - low1, high2 - low2)
-    side /= 3 * max(stop - first, 1)
-    if side <= 0.0:
-        return 0.0 if extent <= 0.0 else float(stop - first)  # points: spread if apart
+    extent = max(high[0] - low[0], high[1] - low[1], high[2] - low[2])
+    side /= 3 * (stop - first)
+    if side <= 0.0:  # points only: spread out unless they all coincide
+        return 0.0 if extent <= 0.0 else float(stop - first)
     return extent / side

@@ -105,9 +105,10 @@ class Grid:
         self._static = build_table(self._static, self._static_lattice, aabbs, rows, n_static,
                                    0)
         shift = min(self._static.sizes[3], shift_for(BUCKETS_PER_ENTRY * dynamic_entries))
-        if shift != self._static.sizes[3]:
-            self._static = build_table(self._static, self._static_lattice, aabbs, rows,
-                                       n_static, 0, shift)
+        # Built again in spatial order, so that the slots of neighbours are neighbours.
+        spatial_order(self._static, rows)
+        self._static = build_table(self._static, self._static_lattice, aabbs, rows, n_static,
+                                   0, shift)
         self.stats['static_builds'] += 1
 
 
@@ -117,11 +118,13 @@ def _within_ratio(a, b, ratio):
 
 @kernel
 def _grid_pairs(aabbs, n_static, n_total, dynamic, static, order, out):
-    is_big, big_rows, sizes = dynamic.is_big, dynamic.big_rows, dynamic.sizes
-    bucket_end, entry_row, entry_key = dynamic.bucket_end, dynamic.entry_row, dynamic.entry_key
-    entry_first, entry_aabb = dynamic.entry_first, dynamic.entry_aabb
-    static_end, static_row, static_key = static.bucket_end, static.entry_row, static.entry_key
-    static_first, static_aabb = static.entry_first, static.entry_aabb
+    rows, boxes, is_big, big_rows = dynamic.rows, dynamic.aabbs, dynamic.is_big, \
+        dynamic.big_rows
+    sizes, bucket_end, entry_slot = dynamic.sizes, dynamic.bucket_end, dynamic.entry_slot
+    entry_key, entry_first = dynamic.entry_key, dynamic.entry_first
+    static_rows, static_boxes, static_end = static.rows, static.aabbs, static.bucket_end
+    static_slot, static_key, static_first = static.entry_slot, static.entry_key, \
+        static.entry_first
     count = 0
     compared = 0
     for bucket in range(sizes[1]):
@@ -134,20 +137,24 @@ def _grid_pairs(aabbs, n_static, n_total, dynamic, static, order, out):
         for e in range(start, end):
             key = entry_key[e]
             first = entry_first[e]
-            row = entry_row[e]
+            slot = entry_slot[e]
+            row = rows[slot]
+            # The box's AABB in locals: the stores to ``out`` would make LLVM reload it.
+            x0, y0, z0 = boxes[slot, 0, 0], boxes[slot, 0, 1], boxes[slot, 0, 2]
+            x1, y1, z1 = boxes[slot, 1, 0], boxes[slot, 1, 1], boxes[slot, 1, 2]
             # Only the first shared cell of a pair owns it; tested without branches.
             for f in range(e + 1, end):
                 owned = (entry_key[f] == key) & ((first | entry_first[f]) == ALL_FIRST)
                 compared += owned
-                other = entry_row[f]
-                count = emit_if(out, count, owned & overlap_across(entry_aabb, e, entry_aabb, f),
-                                min(row, other), max(row, other))
+                other = entry_slot[f]
+                hit = owned & _overlaps(x0, y0, z0, x1, y1, z1, boxes, other)
+                count = emit_if(out, count, hit, min(row, rows[other]), max(row, rows[other]))
             for s in range(static_start, static_stop):
                 owned = (static_key[s] == key) & ((first | static_first[s]) == ALL_FIRST)
                 compared += owned
-                count = emit_if(out, count,
-                                owned & overlap_across(entry_aabb, e, static_aabb, s),
-                                row, static_row[s])
+                other = static_slot[s]
+                hit = owned & _overlaps(x0, y0, z0, x1, y1, z1, static_boxes, other)
+                count = emit_if(out, count, hit, row, static_rows[other])
     for i in range(sizes[2]):  # big dynamic boxes: a brute-force row each
         a = big_rows[i]
         count, tested = pairs_with_all_dynamic(aabbs, a, n_static, n_total, is_big, out, count)
@@ -163,3 +170,10 @@ def _grid_pairs(aabbs, n_static, n_total, dynamic, static, order, out):
                     count = emit(out, count, a, b, n_static)
     spatial_order(dynamic, order)  # next tick's filling order
     return count, compared
+
+
+@kernel
+def _overlaps(x0, y0, z0, x1, y1, z1, aabbs, b):
+    """:func:`~.cell_table.overlap_across` with the first box given by its corners."""
+    return not ((x0 > aabbs[b, 1, 0]) | (aabbs[b, 0, 0] > x1) | (y0 > aabbs[b, 1, 1])
+                | (aabbs[b, 0, 1] > y1) | (z0 > aabbs[b, 1, 2]) | (aabbs[b, 0, 2] > z1))
