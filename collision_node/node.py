@@ -21,7 +21,8 @@ World's; ``publish`` is the collisions cloud plus the markers when they are buil
 the whole tick. A World answer reused for an unchanged input counts as parse time only.
 
 Markers are built only while ``~/markers`` has a subscriber, at most 30 times a second and
-at most a tenth of the node's time (see MARKER_COST_FACTOR).
+at most a tenth of the node's time (see MARKER_COST_FACTOR). They are written as CDR bytes by
+:mod:`collision_node.markers` (numpy, ~0.2 µs a marker instead of rclpy's ~13 µs).
 
 JIT. The kernels are compiled (or loaded from numba's cache) by a warm-up before the
 subscription exists, so no tick ever compiles. numba caches next to the sources when that
@@ -35,7 +36,6 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray
-import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -43,14 +43,15 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import PointCloud2
-from std_msgs.msg import ColorRGBA, Header
-from visualization_msgs.msg import Marker, MarkerArray
+from std_msgs.msg import Header
+from visualization_msgs.msg import MarkerArray
 
 from collision_node import diagnostics, params, scenes
 from collision_node.broadphase import NAMES
 from collision_node.cdr import CdrError, parse_pose_array
+from collision_node.markers import MarkerWriter
 from collision_node.messages import serialize_collisions
-from collision_node.world import DYNAMIC, World
+from collision_node.world import World
 
 # Newest input wins (DESIGN §3); reliable, because Fast DDS delivers nothing best-effort once a
 # PoseArray passes ~512 KB. Overridable through the qos_overrides.* parameters.
@@ -60,18 +61,12 @@ INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
-# RViz draws at most ~30 frames/s, so faster markers are never seen. A MarkerArray costs rclpy
-# ~13 µs per marker to convert (12 ms at 1,000 bodies, 130 ms at 10,000, measured here), all
-# on the tick's thread: markers are rebuilt only after this many times their last build time,
-# so they take at most 1/10 of the node's time, however large the scene.
+# RViz draws at most ~30 frames/s, so faster markers are never seen. Markers run on the tick's
+# thread and a large scene makes a large MarkerArray (232 bytes a marker: 23 MB at 100,000
+# bodies): they are rebuilt only after this many times their last build and publish time, so
+# they take at most 1/10 of the node's time, however large the scene.
 MARKER_PERIOD_S = 1.0 / 30.0
 MARKER_COST_FACTOR = 10.0
-STATIC_COLOR = ColorRGBA(r=0.6, g=0.6, b=0.6, a=0.5)
-FREE_COLOR = ColorRGBA(r=0.2, g=0.8, b=0.2, a=0.6)
-COLLIDING_COLOR = ColorRGBA(r=0.9, g=0.1, b=0.1, a=0.8)
-NORMAL_COLOR = ColorRGBA(r=1.0, g=0.9, b=0.0, a=1.0)
-NORMAL_ARROW_MIN_LENGTH = 0.05  # m; an arrow is max(depth, this) long, so shallow ones show
-NORMAL_ARROW_WIDTH = 0.01       # m, shaft diameter; the head is twice as wide
 # Sequence number 0 means the rmw does not report publication sequence numbers.
 SEQUENCE_UNSUPPORTED = 0
 WARM_UP_BODIES = 64  # half static: enough for every broad phase to run its full code path
@@ -91,7 +86,8 @@ class CollisionNode(Node):
         config = self._config
         self._world = World(config.broad_phase, config.sphere_prefilter,
                             config.octree_max_depth, config.octree_leaf_cooldown_ticks)
-        self._world.set_static(*config.static_scene())
+        self._static_scene = config.static_scene()  # poses, half extents, ids
+        self._world.set_static(*self._static_scene)
         # Parameter changes may come from another thread (Node.set_parameters); ticks run on
         # the executor's. The lock keeps a World change from landing in the middle of a step.
         self._world_lock = threading.Lock()
@@ -106,7 +102,7 @@ class CollisionNode(Node):
         self._markers_publisher = self.create_publisher(MarkerArray, '~/markers', OUTPUT_QOS)
         self._diagnostics_publisher = self.create_publisher(
             DiagnosticArray, '/diagnostics', OUTPUT_QOS)
-        self._marker_pool = []  # Marker objects reused between ticks: cheaper than new ones
+        self._marker_writer = MarkerWriter(config.frame_id)
         self._next_markers_s = -math.inf  # monotonic s
         self._last_sequence = None
         self._pending = None  # newest unchecked input, in timer mode
@@ -216,47 +212,9 @@ class CollisionNode(Node):
 
     def _publish_markers(self, message, config, contacts):
         """DELETEALL, a cube per body (static, free, colliding), an arrow per contact normal."""
-        header = Header(frame_id=config.frame_id)
-        header.stamp.sec, header.stamp.nanosec = message.sec, message.nanosec
-        poses = message.poses
-        extents = np.broadcast_to(config.dynamic_half_extents, (len(poses), 3))
-        colliding = np.zeros(len(poses), bool)
-        colliding[contacts['id_a']] = True
-        colliding[contacts['id_b'][contacts['type_b'] == DYNAMIC]] = True
-        static_poses, static_extents, static_ids = config.static_scene()
-        normals = np.stack([contacts['normal_x'], contacts['normal_y'], contacts['normal_z']], 1)
-        arrows = np.empty((len(contacts), 7))
-        arrows[:, 0], arrows[:, 1], arrows[:, 2] = contacts['x'], contacts['y'], contacts['z']
-        arrows[:, 3:] = _quaternions_turning_x_to(normals)
-        arrow_scales = np.empty((len(contacts), 3))
-        arrow_scales[:, 0] = np.maximum(contacts['depth'], NORMAL_ARROW_MIN_LENGTH)
-        arrow_scales[:, 1:] = (NORMAL_ARROW_WIDTH, 2.0 * NORMAL_ARROW_WIDTH)
-
-        groups = (  # namespace, marker type, ids, poses, scales (full sizes), colours
-            ('static', Marker.CUBE, static_ids, static_poses, 2.0 * static_extents,
-             [STATIC_COLOR] * len(static_ids)),
-            ('dynamic', Marker.CUBE, range(len(poses)), poses, 2.0 * extents,
-             [COLLIDING_COLOR if hit else FREE_COLOR for hit in colliding.tolist()]),
-            ('normals', Marker.ARROW, range(len(contacts)), arrows, arrow_scales,
-             [NORMAL_COLOR] * len(contacts)),
-        )
-        total = sum(len(group[2]) for group in groups)
-        self._marker_pool.extend(Marker() for _ in range(total - len(self._marker_pool)))
-        markers = [Marker(header=header, action=Marker.DELETEALL)]
-        pool = iter(self._marker_pool)
-        for namespace, marker_type, ids, group_poses, scales, colors in groups:
-            for marker_id, pose, scale, color in zip(
-                    ids, group_poses.tolist(), scales.tolist(), colors):
-                marker = next(pool)
-                marker.header, marker.ns, marker.id, marker.type = \
-                    header, namespace, int(marker_id), marker_type
-                position, orientation = marker.pose.position, marker.pose.orientation
-                position.x, position.y, position.z = pose[:3]
-                orientation.x, orientation.y, orientation.z, orientation.w = pose[3:]
-                marker.scale.x, marker.scale.y, marker.scale.z = scale
-                marker.color = color
-                markers.append(marker)
-        self._markers_publisher.publish(MarkerArray(markers=markers))
+        self._markers_publisher.publish(self._marker_writer.serialize(
+            message.sec, message.nanosec, *self._static_scene, message.poses,
+            config.dynamic_half_extents, contacts))
 
     def _on_set_parameters(self, changes):
         """Apply run-time changes on the next tick; refuse invalid ones with the reason."""
@@ -277,7 +235,8 @@ class CollisionNode(Node):
             if changed.sphere_prefilter != old.sphere_prefilter:
                 self._world.sphere_prefilter = changed.sphere_prefilter
             if [c.enabled for c in changed.colliders] != [c.enabled for c in old.colliders]:
-                self._world.set_static(*changed.static_scene())
+                self._static_scene = changed.static_scene()
+                self._world.set_static(*self._static_scene)
             self._config = changed
         return SetParametersResult(successful=True)
 
@@ -308,24 +267,6 @@ def warm_up():
                 world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents)
                 world.step(scene.dynamic_poses(0.5), scene.dynamic_half_extents)
                 world.step(scene.dynamic_poses(1.0), scene.dynamic_half_extents[0])
-
-
-def _quaternions_turning_x_to(directions):
-    """Return the shortest rotations (N, 4) x y z w from +x to the unit ``directions``.
-
-    An ARROW marker points along its pose's x axis.
-    """
-    # Half-way formula: q = (x × d, 1 + x·d), normalised; it vanishes for d = -x, where any
-    # half-turn about an axis normal to x does (z here).
-    turns = np.zeros((len(directions), 4))
-    turns[:, 1] = -directions[:, 2]
-    turns[:, 2] = directions[:, 1]
-    turns[:, 3] = 1.0 + directions[:, 0]
-    norms = np.linalg.norm(turns, axis=1)
-    opposite = norms < 1e-9
-    turns[opposite] = (0.0, 0.0, 1.0, 0.0)
-    norms[opposite] = 1.0
-    return turns / norms[:, None]
 
 
 def main(args=None):
