@@ -18,14 +18,14 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOMAIN_ID = random.randint(1, 200)  # this module's own DDS domain: no cross-talk
 TOOL_TIMEOUT_S = 60.0  # a process start imports rclpy and numpy: seconds on a busy machine
-RELIABLE_KEEP_ALL = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                                reliability=ReliabilityPolicy.RELIABLE)
 
 
@@ -74,8 +74,13 @@ def receive_poses(ros, count, *arguments):
     """Run pose_publisher with ``arguments``; the parsed PoseArrays it sent, in order."""
     node, executor = ros
     received = []
+    # Transient-local, as the publisher's --count runs: no message is lost to the order in
+    # which the two ends discover each other.
+    qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=count,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
     subscription = node.create_subscription(
-        PoseArray, 'dynamic_poses', received.append, RELIABLE_KEEP_ALL, raw=True)
+        PoseArray, 'dynamic_poses', received.append, qos, raw=True)
     try:
         process = start_tool('pose_publisher', '--count', str(count),
                              '--wait-for-subscriber', *arguments)
@@ -149,9 +154,9 @@ def test_pose_publisher_refuses_a_missing_file():
 def run_monitor_once(ros, cloud, status):
     """Publish ``cloud`` and ``status`` until ``collision_monitor --once`` exits."""
     node, executor = ros
-    cloud_publisher = node.create_publisher(PointCloud2, 'collisions', RELIABLE_KEEP_ALL)
+    cloud_publisher = node.create_publisher(PointCloud2, 'collisions', RELIABLE)
     diagnostics_publisher = node.create_publisher(DiagnosticArray, '/diagnostics',
-                                                  RELIABLE_KEEP_ALL)
+                                                  RELIABLE)
     process = start_tool('collision_monitor', '--once')
     last_sent = [0.0]
 

@@ -21,7 +21,7 @@ import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
@@ -49,11 +49,14 @@ class PosePublisher(Node):
         self.first_stamp_ns = None
         self.finished = Future()
         # Reliable: a large PoseArray does not get through best-effort with Fast DDS's default
-        # transports. Newest only, as the node's input (DESIGN §3), when running on; a run of
-        # ``count`` keeps them all so a subscriber that discovers this writer late (after the
-        # writer discovered it) still gets every message.
+        # transports. Newest only, as the node's input (DESIGN §3), when running on. A run of
+        # ``count`` keeps them all, transient-local: DDS matches the two ends of a topic one
+        # at a time, so a subscriber this writer already sees may not yet see this writer and
+        # miss the first messages; a transient-local subscriber then still gets every one.
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=count or 1,
-                         reliability=ReliabilityPolicy.RELIABLE)
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL if count
+                         else DurabilityPolicy.VOLATILE)
         self.publisher = self.create_publisher(PoseArray, TOPIC, qos)
         self.timer = self.create_timer(1.0 / rate_hz, self.publish_next)
 
@@ -114,7 +117,8 @@ def parse_arguments(argv):
     parser.add_argument('--frame-id', default='world',
                         help="header.frame_id, as the node's frame_id (default: world)")
     parser.add_argument('--count', type=int, metavar='K',
-                        help='stop after K messages (default: run until Ctrl-C)')
+                        help='stop after K messages, all kept for transient-local '
+                        'subscribers (default: run until Ctrl-C)')
     parser.add_argument('--wait-for-subscriber', action='store_true',
                         help='publish only while someone subscribes, so none is lost')
     options = parser.parse_args(argv)
