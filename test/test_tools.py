@@ -26,7 +26,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOMAIN_ID = random.randint(1, 200)  # this module's own DDS domain: no cross-talk
 TOOL_TIMEOUT_S = 60.0  # a process start imports rclpy and numpy: seconds on a busy machine
 RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                               reliability=ReliabilityPolicy.RELIABLE)
+                      reliability=ReliabilityPolicy.RELIABLE)
 
 
 def tool_environment():
