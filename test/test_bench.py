@@ -174,13 +174,20 @@ def test_contact_keys_map_ids_back_to_rows():
     assert contact_keys(contacts, 3, 10).tolist() == [2 * 10 + 3, 4 * 10 + 5]
 
 
-def test_slow_runs_are_skipped_by_quadratic_extrapolation():
+def test_slow_runs_are_skipped_by_extrapolation():
     slow = bench.SlowRunFilter(max_tick_s=1.0)
     assert slow.reason_to_skip('run', 1000) is None  # nothing known yet
-    slow.record('run', 1000, 20.0)                   # 20 ms at 1,000 bodies
+    slow.record('run', 1000, 20.0)                   # 20 ms at 1,000 bodies: n² assumed
     assert slow.reason_to_skip('run', 5000) is None  # 0.5 s expected
     assert slow.reason_to_skip('run', 10000).startswith('skipped: ~2 s per tick')
     assert slow.reason_to_skip('other run', 10000) is None
+    slow.record('run', 10000, 200.0)                 # linear from 1,000 to 10,000
+    assert slow.reason_to_skip('run', 40000) is None  # 0.8 s expected
+    assert 'n^1' in slow.reason_to_skip('run', 100000)  # 2 s expected
+    slow.record('quadratic', 1000, 1.0)
+    slow.record('quadratic', 10000, 100.0)
+    assert slow.reason_to_skip('quadratic', 20000) is None  # 0.4 s
+    assert 'n^2' in slow.reason_to_skip('quadratic', 40000)  # 1.6 s
 
 
 def test_a_skipped_row_keeps_its_name_and_says_why():

@@ -94,7 +94,8 @@ def _keep_close(pairs, aabbs, centers, radii, test, out):
 def ground_truth(scene, ticks, dt, budget_s):
     """Pair keys per tick from the float64 SAT on all AABB-overlapping pairs.
 
-    Stops early once ``budget_s`` seconds have passed; the other modes then run as many ticks.
+    Stops early once ``budget_s`` seconds have passed (however long a tick takes: the truth
+    is brute force by design); the other modes then run as many ticks.
     """
     world = World(broad_phase=TRUTH_PHASE)
     world.set_static(scene.static_poses, scene.static_half_extents)

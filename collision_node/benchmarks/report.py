@@ -157,9 +157,15 @@ def _phase_label(row):
     return name
 
 
+def _ticks(row):
+    """The ticks run, and why the run stopped early if it did."""
+    if row.get('stopped'):
+        return '%d (%s)' % (row['ticks'], row['stopped'])
+    return row['ticks']
+
+
 TICK_COLUMNS = [
-    ('ticks', lambda row: '%d%s' % (row['ticks'], ' (stopped early)' if row['truncated']
-                                    else '')),
+    ('ticks', _ticks),
     ('slowest ticks/s', _get('slowest_tps')),
     ('quickest ticks/s', _get('quickest_tps')),
     ('average ticks/s', _get('average_tps')),
@@ -247,7 +253,7 @@ def markdown(results, plot_note):
                 'float64" the World as shipped. "compared" is per tick (mean).', '',
                 table([('scene', _get('scene')), ('bodies', _get('bodies')),
                        ('broad phase', _get('broad_phase')), ('mode', _get('mode')),
-                       ('ticks', _get('ticks')), ('compared', _get('compared')),
+                       ('ticks', _ticks), ('compared', _get('compared')),
                        ('true pairs', _get('true_pairs')),
                        ('false positives', _get('false_positives')),
                        ('false negatives', _get('false_negatives')),
@@ -262,7 +268,7 @@ def markdown(results, plot_note):
                 'the `defaultCollisionCallback` of python-fcl; its time is update + collide. '
                 'Mismatches: pairs only one side reports, summed over the ticks.', '',
                 table([('bodies', _get('bodies')), ('broad phase', _get('broad_phase')),
-                       ('ticks', _get('ticks')), ('ours median ms', _get('median_ms')),
+                       ('ticks', _ticks), ('ours median ms', _get('median_ms')),
                        ('python-fcl median ms', _get('fcl_median_ms')),
                        ('fcl update ms', _get('fcl_update_ms')),
                        ('fcl collide ms', _get('fcl_collide_ms')),
@@ -277,7 +283,7 @@ def markdown(results, plot_note):
                 'timed stage by stage from the public pieces. Steady state: the ticks timed '
                 'follow %d untimed ones.' % SETTLE_TICKS, '',
                 table([('scene', _get('scene')), ('bodies', _get('bodies')),
-                       ('broad phase', _phase_label), ('ticks', _get('ticks')),
+                       ('broad phase', _phase_label), ('ticks', _ticks),
                        ('tick', _get('tick_ms')), ('prepare', _get('prepare_ms')),
                        ('broad', _get('broad_ms')), ('narrow', _get('narrow_ms')),
                        ('other', _get('other_ms')), ('set_boxes', _get('set_boxes_ms')),

@@ -4,7 +4,9 @@ A tick is one call of ``World.step`` (poses in, sorted contacts out), timed from
 it includes everything a caller pays. The scene's motion itself (``Scene.dynamic_poses``) is
 computed between ticks and not timed: it stands for the simulation, not the collision check.
 """
+import math
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -19,22 +21,40 @@ WARM_UP_BODIES = 64
 WARM_UP_TICKS = 2
 
 
+class Limits(NamedTuple):
+    """When a run stops early: once it has used ``budget_s`` seconds of wall time, or right
+    after one tick longer than ``tick_s`` (a tick cannot be interrupted, only not repeated)."""
+
+    budget_s: float
+    tick_s: float = math.inf
+
+    def reason_to_stop(self, started, tick_s):
+        """Why a run that began at ``started`` should stop after a tick of ``tick_s``, or None."""
+        if tick_s > self.tick_s:
+            return 'stopped: a tick took %.3g s' % tick_s
+        if time.perf_counter() - started > self.budget_s:
+            return 'stopped: %g s budget used' % self.budget_s
+        return None
+
+
 def tick_poses(scene, ticks, dt):
     """Yield (tick, dynamic poses) at times 0, dt, 2 dt, ..."""
     for tick in range(ticks):
         yield tick, scene.dynamic_poses(tick * dt)
 
 
-def summarize(tick_ms, planned_ticks, compared=(), **counts):
+def summarize(tick_ms, planned_ticks, stopped=None, compared=(), **counts):
     """Summarise a run in the papers' columns: ticks per second (1/tick time), pairs compared.
 
     slowest = 1 / longest tick, quickest = 1 / shortest tick, average = ticks / total time.
     ``counts`` are per-tick series (candidate pairs, colliding pairs...): their min and max.
+    ``stopped`` says why the run ended before ``planned_ticks``.
     """
     ms = np.asarray(tick_ms, dtype=np.float64)
     row = {
         'ticks': len(ms),
         'truncated': len(ms) < planned_ticks,
+        'stopped': stopped if len(ms) < planned_ticks else None,
         'median_ms': float(np.median(ms)),
         'p99_ms': float(np.percentile(ms, 99)),
         'min_ms': float(ms.min()),
@@ -50,23 +70,25 @@ def summarize(tick_ms, planned_ticks, compared=(), **counts):
     return row
 
 
-def run_world(scene, ticks, dt, budget_s, **world_options):
+def run_world(scene, ticks, dt, limits, **world_options):
     """Step a ``World(**world_options)`` through ``ticks`` ticks of ``scene``.
 
-    Stops early (``truncated``) once the run has taken ``budget_s`` seconds of wall time.
+    Stops early (``truncated``) when the :class:`Limits` say so.
     """
     world = World(**world_options)
     world.set_static(scene.static_poses, scene.static_half_extents)
     tick_ms, stats = [], []
     started = time.perf_counter()
+    stopped = None
     for _, poses in tick_poses(scene, ticks, dt):
         before = time.perf_counter()
         result = world.step(poses, scene.dynamic_half_extents)
         tick_ms.append(1e3 * (time.perf_counter() - before))
         stats.append(result.stats)
-        if time.perf_counter() - started > budget_s:
+        stopped = limits.reason_to_stop(started, 1e-3 * tick_ms[-1])
+        if stopped:
             break
-    row = summarize(tick_ms, ticks,
+    row = summarize(tick_ms, ticks, stopped,
                     compared=[s['compared'] for s in stats],
                     candidate_pairs=[s['candidate_pairs'] for s in stats],
                     sat_tests=[s['sat_tests'] for s in stats],
@@ -78,7 +100,7 @@ def run_world(scene, ticks, dt, budget_s, **world_options):
     return row
 
 
-def run_all_pairs_sat(scene, ticks, dt, budget_s):
+def run_all_pairs_sat(scene, ticks, dt, limits):
     """Paper 000's baseline: the SAT on every dynamic-static and dynamic-dynamic pair."""
     n_static = len(scene.static_poses)
     n_dynamic = scene.dynamic_count
@@ -87,6 +109,7 @@ def run_all_pairs_sat(scene, ticks, dt, budget_s):
     pairs = all_pairs(n_static, n_dynamic)
     tick_ms, colliding = [], []
     started = time.perf_counter()
+    stopped = None
     for _, poses in tick_poses(scene, ticks, dt):
         before = time.perf_counter()
         set_boxes(boxes, n_static, poses, scene.dynamic_half_extents)
@@ -94,9 +117,10 @@ def run_all_pairs_sat(scene, ticks, dt, budget_s):
                                pairs, False)[0]
         tick_ms.append(1e3 * (time.perf_counter() - before))
         colliding.append(np.count_nonzero(status == COLLIDING))
-        if time.perf_counter() - started > budget_s:
+        stopped = limits.reason_to_stop(started, 1e-3 * tick_ms[-1])
+        if stopped:
             break
-    return summarize(tick_ms, ticks, compared=[len(pairs)] * len(tick_ms),
+    return summarize(tick_ms, ticks, stopped, compared=[len(pairs)] * len(tick_ms),
                      sat_tests=[len(pairs)] * len(tick_ms), colliding=colliding)
 
 
@@ -108,10 +132,10 @@ def all_pairs(n_static, n_dynamic):
     return np.ascontiguousarray(np.stack([second[keep], first[keep]], axis=1))
 
 
-def warmed(run, scene, ticks, dt, budget_s, **options):
-    """``run(scene, ticks, dt, budget_s, **options)`` after a short run on a tiny scene.
+def warmed(run, scene, ticks, dt, limits, **options):
+    """``run(scene, ticks, dt, limits, **options)`` after a short run on a tiny scene.
 
     The tiny scene is of the same kind, so the same kernels with the same types are called.
     """
-    run(make_scene(scene.name, WARM_UP_BODIES), WARM_UP_TICKS, dt, budget_s, **options)
-    return run(scene, ticks, dt, budget_s, **options)
+    run(make_scene(scene.name, WARM_UP_BODIES), WARM_UP_TICKS, dt, limits, **options)
+    return run(scene, ticks, dt, limits, **options)

@@ -6,6 +6,7 @@ rest of ``step`` as seen from outside), and the same pipeline rebuilt from the p
 and timed stage by stage (set_boxes, find_pairs, the SAT with the sphere prefilter, contact
 assembly), which splits the World's stages further.
 """
+import math
 import time
 
 import numpy as np
@@ -24,10 +25,11 @@ SETTLE_TICKS = 10
 PIPELINE_STAGES = ('set_boxes', 'find_pairs', 'sat', 'contacts')
 
 
-def profile_stages(scene, ticks, dt, budget_s, phase_name='auto'):
+def profile_stages(scene, ticks, dt, limits, phase_name='auto'):
     """Median milliseconds per stage over the ticks, both views, keyed by stage name.
 
-    The ticks timed follow SETTLE_TICKS untimed ones.
+    The ticks timed follow SETTLE_TICKS untimed ones; ``limits`` (:class:`.runs.Limits`)
+    stop the run early, the time budget counting from the first timed tick.
     """
     n_static = len(scene.static_poses)
     n_dynamic = scene.dynamic_count
@@ -40,22 +42,29 @@ def profile_stages(scene, ticks, dt, budget_s, phase_name='auto'):
     static_ids = np.arange(n_static)
     ms = {stage: [] for stage in WORLD_STAGES + PIPELINE_STAGES}
     phases_used = set()
-    started = None
+    started = time.perf_counter()
+    stopped = None
+    settling_limits = limits._replace(budget_s=math.inf)  # the budget is for timed ticks
     for tick, poses in tick_poses(scene, SETTLE_TICKS + ticks, dt):
-        if tick < SETTLE_TICKS:
-            world.step(poses, scene.dynamic_half_extents)
-            set_boxes(boxes, n_static, poses, scene.dynamic_half_extents)
-            phase.find_pairs(boxes, n_static, n_dynamic)
-            continue
-        started = started or time.perf_counter()
+        timed = tick >= SETTLE_TICKS
+        if tick == SETTLE_TICKS:
+            started = time.perf_counter()
         before = time.perf_counter()
         stats = world.step(poses, scene.dynamic_half_extents).stats
-        tick = 1e3 * (time.perf_counter() - before)
-        phases_used.add(stats['broad_phase'])
-        ms['tick'].append(tick)
-        for stage in ('prepare', 'broad', 'narrow'):
-            ms[stage].append(stats[stage + '_ms'])
-        ms['other'].append(tick - stats['prepare_ms'] - stats['broad_ms'] - stats['narrow_ms'])
+        tick_ms = 1e3 * (time.perf_counter() - before)
+        if timed:
+            phases_used.add(stats['broad_phase'])
+            ms['tick'].append(tick_ms)
+            for stage in ('prepare', 'broad', 'narrow'):
+                ms[stage].append(stats[stage + '_ms'])
+            ms['other'].append(tick_ms - stats['prepare_ms'] - stats['broad_ms']
+                               - stats['narrow_ms'])
+        stopped = (limits if timed else settling_limits).reason_to_stop(started,
+                                                                        1e-3 * tick_ms)
+        if stopped and not timed:
+            return {'skipped': '%s (untimed settling tick %d)' % (stopped, tick)}
+        if stopped:
+            break
 
         times = [time.perf_counter()]
         set_boxes(boxes, n_static, poses, scene.dynamic_half_extents)
@@ -67,11 +76,18 @@ def profile_stages(scene, ticks, dt, budget_s, phase_name='auto'):
         times.append(time.perf_counter())
         assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids)
         times.append(time.perf_counter())
-        for stage, begin, end in zip(PIPELINE_STAGES, times, times[1:]):
-            ms[stage].append(1e3 * (end - begin))
-        if time.perf_counter() - started > budget_s:
+        if timed:
+            for stage, begin, end in zip(PIPELINE_STAGES, times, times[1:]):
+                ms[stage].append(1e3 * (end - begin))
+        stopped = (limits if timed else settling_limits).reason_to_stop(started,
+                                                                        times[-1] - times[0])
+        if stopped and timed:
             break
+        if stopped:
+            return {'skipped': '%s (untimed settling tick %d)' % (stopped, tick)}
+    # The replica may miss the last tick when the World's tick stopped the run.
     row = {stage + '_ms': float(np.median(values)) for stage, values in ms.items()}
     row.update(scene=scene.name, bodies=n_static + n_dynamic, broad_phase=phase_name,
-               phases_used=sorted(phases_used), ticks=len(ms['tick']))
+               phases_used=sorted(phases_used), ticks=len(ms['tick']),
+               stopped=stopped if len(ms['tick']) < ticks else None)
     return row
