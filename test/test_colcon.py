@@ -111,6 +111,16 @@ def test_sourced_workspace_finds_the_installed_package(workspace):
     assert module.startswith(str(install / 'lib')), module
 
 
+@pytest.mark.parametrize('tool', ['pose_publisher', 'collision_monitor', 'collision_demo'])
+def test_installed_tools_start(workspace, tool):
+    script = workspace / 'install' / PACKAGE / 'lib' / PACKAGE / tool
+    result = subprocess.run(sourced(workspace, '"%s" --help' % script), cwd=workspace,
+                            env=colcon_environment(), capture_output=True, text=True,
+                            timeout=60.0)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith('usage: %s' % tool), result.stdout
+
+
 def test_symlink_install_builds_too(tmp_path):
     # setup.cfg's [develop] script_dir puts the scripts where ros2 run looks, as [install]
     # install_scripts does for the default build.
