@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from collision_node import World
-from collision_node.broadphase import make_broad_phase, NAMES, Settings
+from collision_node.broadphase import check_settings, make_broad_phase, NAMES, Settings
 from collision_node.broadphase.auto import Auto, SWITCH_AFTER_TICKS
 from collision_node.broadphase.kd_tree import KdTreePhase
 from collision_node.broadphase.octree import Octree, paper_depth, size_depth
@@ -429,3 +429,16 @@ def test_long_chaos_run(name):
     scene = ChaosScene(n_max=800, seed=11)
     for tick, results in run_worlds(scene, ['brute_force', name], range(1000)):
         assert np.array_equal(contact_ids(results[name]), contact_ids(results['brute_force']))
+
+
+@pytest.mark.parametrize('settings, message', [
+    (Settings(octree_max_depth=11), 'max depth'), (Settings(octree_max_depth=-1), 'max depth'),
+    (Settings(octree_max_depth=2.5), 'max depth'), (Settings(octree_max_depth=True), 'max depth'),
+    (Settings(octree_leaf_cooldown_ticks=-1), 'cooldown'),
+    (Settings(octree_leaf_cooldown_ticks='15'), 'cooldown')])
+def test_invalid_settings_are_refused_with_a_reason(settings, message):
+    with pytest.raises(ValueError, match=message):
+        check_settings(settings)
+    with pytest.raises(ValueError, match=message):
+        make_broad_phase('octree', settings)
+    assert check_settings(Settings(np.int64(10), np.int64(0))) == (10, 0)

@@ -16,12 +16,13 @@ holds:
     overlap; both contain every pair of touching boxes). ``compared`` counts the pair comparisons
     the phase made (the seeds' "compared" column). The array stays valid until the next call.
 """
+from numbers import Integral
 from typing import NamedTuple
 
 from collision_node.broadphase.brute_force import BruteForce
 from collision_node.broadphase.grid import Grid
 from collision_node.broadphase.kd_tree import KdTreePhase
-from collision_node.broadphase.octree import Octree
+from collision_node.broadphase.octree import MAX_DEPTH, Octree
 from collision_node.broadphase.sphere import Sphere
 from collision_node.broadphase.sweep_and_prune import SweepAndPrune
 
@@ -29,8 +30,21 @@ from collision_node.broadphase.sweep_and_prune import SweepAndPrune
 class Settings(NamedTuple):
     """Tunables of the broad phases, named like the node's parameters."""
 
-    octree_max_depth: int = 0            # 0: chosen from the body count
+    octree_max_depth: int = 0            # 0: chosen from the body size (octree.size_depth)
     octree_leaf_cooldown_ticks: int = 15  # ticks an emptied leaf lives before it is dropped
+
+
+def check_settings(settings):
+    """Return ``settings`` if every field is valid, else raise ValueError saying why."""
+    depth = settings.octree_max_depth
+    if isinstance(depth, bool) or not isinstance(depth, Integral) or not 0 <= depth <= MAX_DEPTH:
+        raise ValueError('octree max depth must be an integer from 0 (automatic) to %d, '
+                         'got %r' % (MAX_DEPTH, depth))
+    cooldown = settings.octree_leaf_cooldown_ticks
+    if isinstance(cooldown, bool) or not isinstance(cooldown, Integral) or cooldown < 0:
+        raise ValueError('octree leaf cooldown must be an integer >= 0 ticks, got %r'
+                         % (cooldown,))
+    return settings
 
 
 BROAD_PHASES = {phase.name: phase for phase in (BruteForce, Sphere, Octree, KdTreePhase,
@@ -39,7 +53,11 @@ NAMES = tuple(BROAD_PHASES) + ('auto',)
 
 
 def make_broad_phase(name, settings=Settings()):
-    """Return a new broad phase called ``name`` (one of :data:`NAMES`)."""
+    """Return a new broad phase called ``name`` (one of :data:`NAMES`).
+
+    Raises ValueError for an unknown name or invalid settings (:func:`check_settings`).
+    """
+    check_settings(settings)
     if name == 'auto':
         from collision_node.broadphase.auto import Auto
         return Auto(settings)

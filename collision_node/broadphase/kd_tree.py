@@ -33,7 +33,7 @@ from collision_node.broadphase.cell_table import overlap_across
 from collision_node.broadphase.pair_buffer import emit_if, PairBuffer
 
 LEAF_SIZE = 4           # boxes per leaf: fewer means deeper trees, more means more pair tests
-REBUILD_AREA_RATIO = 1.5  # rebuild when the refitted tree's relative area grew this much
+REBUILD_AREA_RATIO = 1.2  # rebuild when the refitted tree's relative area grew this much
 STACK_SIZE = 128        # depth of a balanced tree over < 2**60 boxes, twice over
 
 
