@@ -6,6 +6,7 @@ The room scene has hand-computed contacts. The params-file helpers write the YAM
 ``--params-file`` reads, with one good file and a set of bad ones, each breaking one parameter.
 """
 import itertools
+import json
 import os
 import pathlib
 import subprocess
@@ -269,3 +270,14 @@ def run_node(domain_id, params_file, timeout_s=120):
     return subprocess.run(node_command('--params-file', params_file), cwd=REPO,
                           env=node_environment(domain_id), capture_output=True, text=True,
                           timeout=timeout_s)
+
+
+def run_soak(domain_id, json_path, *arguments, timeout_s=900):
+    """Run collision_soak as a process; return its result and its summary (a dict)."""
+    done = subprocess.run(
+        [sys.executable, '-m', 'collision_node.tools.soak', '--json', str(json_path),
+         *arguments], cwd=REPO, env=node_environment(domain_id), capture_output=True,
+        text=True, timeout=timeout_s)
+    summary = json.loads(pathlib.Path(json_path).read_text()) if done.returncode in (0, 1) \
+        else None
+    return done, summary
