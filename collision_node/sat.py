@@ -4,20 +4,47 @@ Everything is computed in float64 in the frame of box A of each pair: R = AᵀB 
 t = Aᵀ(c_B − c_A). Working relative to A keeps the numbers as small as the pair, not as
 large as its distance from the world origin.
 
-Verdict: a pair collides when no axis separates it (touching counts as colliding). Within
-TOUCH_TOLERANCE(A, B) = TIE_ULPS · eps · (|c_A|∞ + |c_B|∞ + Σ half extents of A and B) of
-touching, rounding may decide either way; farther from touching the verdict is exact.
+Verdict: a pair collides when none of the 15 axes (3 face axes of A, 3 of B, 9 edge×edge)
+separates it; touching counts as colliding. The verdict is exact except within
+
+    touch_tolerance(A, B) = TIE_ULPS · eps · (Σ half extents of A and B + ‖c_B − c_A‖₁)
+
+of touching, where rounding may decide either way. "Distance from touching" is the exact
+SAT separation: the largest gap between the boxes' projections over the 15 axes (normalised),
+or minus the least overlap when none separates. The scale is that of the pair and of its
+relative position, not of its distance from the origin: subtracting the centres is the only
+operation on world coordinates, and it is exact for nearby centres (Sterbenz). The tolerance
+covers the float64 rotation matrices as well (the pose's quaternion is normalised in
+float64), and quaternions off unit norm by up to obb.QUATERNION_NORM_TOLERANCE. Checked
+against an exact rational referee (test/exact_sat.py) on the stress classes of
+test/test_sat_stress.py, where the largest disagreement seen was a few ulps of that scale.
 
 Depth, normal and contact point of a colliding pair:
-* normal: unit vector, world frame, along the axis of least overlap, pointing from A to B;
+
+* normal: unit vector, world frame, along the axis of least overlap, pointing from A to B
+  (t·normal ≥ 0; any sign when B's centre projects onto A's, e.g. concentric boxes);
 * depth: the overlap of the two boxes' projections on that axis, i.e. how far B has to move
-  along the normal until the boxes only touch. For a box contained in another this is the
-  distance to push it out through the nearest side, which is more than its own size;
-* point: on a face axis, the centre of the incident feature of the other box (vertex, edge or
-  face: whatever lies deepest) clamped to the reference face and placed halfway through the
-  overlap; on an edge×edge axis, the midpoint of the closest points of the two edges.
-Face axes win ties with edge axes (within the tolerance), so boxes resting face on face never
-get a phantom contact along a noisy edge×edge axis.
+  along the normal until the boxes only touch; this least overlap over the 15 axes is the
+  exact penetration depth of two boxes. For a box contained in another this is the distance
+  to push it out through the nearest side, which is more than its own size;
+* point: on the line through an anchor along the normal, the midpoint of the chord that both
+  boxes cut from it. The anchor is the middle of the deepest feature of B along −normal
+  (vertex, edge or face) clamped into A for A's face axes, the same with A and B swapped for
+  B's face axes, and the midpoint of the closest points of the two edges for edge×edge axes;
+  when that chord is empty (rounding at touching, near-parallel edges), the other anchors are
+  tried, and the anchor itself is the last resort. So the point lies in both boxes (within
+  the touching tolerance), halfway through the overlap along the normal, and inside the
+  contained box for containment. A box thinner than the depth (a plate or a needle crossing
+  another one) can leave every chord empty: then the point lies within the depth of it.
+
+Face axes win ties with edge axes (within the touching tolerance), so boxes resting face on face
+never get a phantom contact along a noisy edge×edge axis. Depth and normal are accurate to
+~1e-14 of the pair's size, except the normal on an edge×edge axis of two edges at an angle θ:
+its direction is only defined to ~eps/θ by float64 rotation matrices (the depth stays
+accurate; the boxes overlap along the reported normal by the reported depth).
+
+Non-finite input: any NaN or Inf in the centres, rotations or half extents of a pair makes its
+status INVALID (never SEPARATED or COLLIDING), also when the sphere prefilter rejected it.
 """
 import math
 
@@ -28,15 +55,30 @@ from collision_node.obb import EPS, spheres_apart, TIE_ULPS
 
 SEPARATED = 0
 COLLIDING = 1
-INVALID = 2  # a NaN reached the test: it claims neither verdict
+INVALID = 2  # a NaN or Inf reached the test: it claims neither verdict
 
 # Two edges whose cross product is shorter than this are parallel: their axis is the zero
-# vector and the face axes already decide the pair. Any longer cross product is normalised,
-# so even a noisy direction is a valid axis (SAT holds for every direction).
+# vector and the face axes already decide the pair. Any longer cross product is a valid axis,
+# however noisy its direction (SAT holds for every direction).
 MIN_EDGE_AXIS_LENGTH = 1e-150
 # A box axis this close to perpendicular to the normal counts as lying flat on it when the
 # contact feature is picked, so a face lying on a face yields the middle of that face.
 FEATURE_TOLERANCE = 1e-9
+
+# The 15 axes by number: 0-2 A's axes (faces), 3-5 B's axes, then 6 + 3i + j for the edge
+# axis A's axis i × B's axis j. Contact anchors are numbered like the kinds of axis.
+_FIRST_B_FACE = 3
+_FIRST_EDGE = 6
+_B_FEATURE_IN_A = 0
+_A_FEATURE_IN_B = 1
+_EDGE_CLOSEST_POINTS = 2
+
+
+def touch_tolerance(center_a, center_b, half_extents_a, half_extents_b):
+    """Distance from touching within which the verdict on boxes A and B may go either way."""
+    scale = (np.sum(half_extents_a) + np.sum(half_extents_b)
+             + np.sum(np.abs(np.subtract(center_b, center_a))))
+    return TIE_ULPS * EPS * float(scale)
 
 
 def collide_pairs(centers, rotations, half_extents, radii, pairs, sphere_prefilter=False):
@@ -59,105 +101,181 @@ def collide_pairs(centers, rotations, half_extents, radii, pairs, sphere_prefilt
     return status, depth, normal, point, sat_tests
 
 
+# Speed notes. The per-pair helpers take and return tuples of floats, never arrays: numba
+# reference-counts every array handed to a function it does not inline (two atomic operations
+# per array per call), which cost more than the whole SAT. And each helper that indexes a
+# tuple is called with constant indices, so that it is inlined and the indexing resolved at
+# compile time; a tuple indexed at run time compiles to a branch per element.
+#
+# Notation: R = AᵀB as a row-major 9-tuple, R[3i + j] = a_i·b_j (column j is B's axis j in
+# A's frame); t = Aᵀ(c_B − c_A), B's centre in A's frame; ea, eb the half extents.
+
 @kernel
 def _collide_pairs(centers, rotations, extents, radii, pairs, sphere_prefilter,
                    status, depth, normal, point):
-    rel = np.empty((3, 3))    # R = AᵀB: column j is B's axis j in A's frame
-    t = np.empty(3)           # B's centre in A's frame
-    axis = np.empty(3)        # least-overlap axis in A's frame, A → B
-    local_point = np.empty(3)
     sat_tests = 0
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
         b = pairs[k, 1]
+        ea = (extents[a, 0], extents[a, 1], extents[a, 2])
+        eb = (extents[b, 0], extents[b, 1], extents[b, 2])
+        ra = _matrix(rotations, a)
+        rb = _matrix(rotations, b)
         if sphere_prefilter and spheres_apart(centers, radii, a, b):
-            status[k] = SEPARATED
+            # NaN centres and radii never pass the sphere test; the rest is checked here.
+            status[k] = SEPARATED if _all_finite(ra + rb + ea + eb) else INVALID
             continue
         sat_tests += 1
-        status[k], depth[k] = _separating_axis_test(centers, rotations, extents, a, b,
-                                                    rel, t, axis, local_point)
+        d = (centers[b, 0] - centers[a, 0], centers[b, 1] - centers[a, 1],
+             centers[b, 2] - centers[a, 2])
+        rel, t = _relative_pose(ra, rb, d)
+        # Every input reaches ea, eb, d, R (all entries of both rotations) or t: a NaN or an
+        # Inf anywhere, or an overflow, shows up here.
+        scale = _sum_abs(ea) + _sum_abs(eb) + _sum_abs(d)
+        if not (math.isfinite(scale) and _all_finite(rel + t)):
+            status[k] = INVALID
+            continue
+        tie = TIE_ULPS * EPS * scale
+        status[k], depth[k], axis_id = _separating_axis_test(rel, t, ea, eb, tie)
         if status[k] == COLLIDING:
-            for i in range(3):
-                normal[k, i] = 0.0
-                point[k, i] = centers[a, i]
-                for j in range(3):
-                    normal[k, i] += rotations[a, i, j] * axis[j]
-                    point[k, i] += rotations[a, i, j] * local_point[j]
+            axis, local_point = _contact(rel, t, ea, eb, tie, axis_id)
+            world_normal = _rotate(ra, axis)
+            world_offset = _rotate(ra, local_point)
+            for m in range(3):
+                normal[k, m] = world_normal[m]
+                point[k, m] = centers[a, m] + world_offset[m]
     return sat_tests
 
 
 @kernel
-def _separating_axis_test(centers, rotations, extents, a, b, rel, t, axis, local_point):
-    """Return (status, depth); fill ``axis`` and ``local_point`` (A's frame) when colliding."""
-    ea = extents[a]
-    eb = extents[b]
-    ra = rotations[a]
-    rb = rotations[b]
-    d0 = centers[b, 0] - centers[a, 0]
-    d1 = centers[b, 1] - centers[a, 1]
-    d2 = centers[b, 2] - centers[a, 2]
-    scale = 0.0
-    for i in range(3):
-        t[i] = ra[0, i] * d0 + ra[1, i] * d1 + ra[2, i] * d2
-        for j in range(3):
-            rel[i, j] = ra[0, i] * rb[0, j] + ra[1, i] * rb[1, j] + ra[2, i] * rb[2, j]
-        scale += ea[i] + eb[i] + abs(t[i])
-    tie = TIE_ULPS * EPS * scale
+def _matrix(rotations, a):
+    """Return box ``a``'s rotation matrix as a row-major 9-tuple."""
+    return (rotations[a, 0, 0], rotations[a, 0, 1], rotations[a, 0, 2],
+            rotations[a, 1, 0], rotations[a, 1, 1], rotations[a, 1, 2],
+            rotations[a, 2, 0], rotations[a, 2, 1], rotations[a, 2, 2])
 
+
+@kernel
+def _all_finite(values):
+    total = 0.0
+    for x in values:
+        total += x * 0.0  # 0 for a finite x, NaN for NaN and ±Inf; the sum cannot overflow
+    return total == 0.0
+
+
+@kernel
+def _sum_abs(v):
+    return abs(v[0]) + abs(v[1]) + abs(v[2])
+
+
+@kernel
+def _rotate(matrix, v):
+    """Return ``matrix`` (a row-major 9-tuple) times ``v``."""
+    return (matrix[0] * v[0] + matrix[1] * v[1] + matrix[2] * v[2],
+            matrix[3] * v[0] + matrix[4] * v[1] + matrix[5] * v[2],
+            matrix[6] * v[0] + matrix[7] * v[1] + matrix[8] * v[2])
+
+
+@kernel
+def _relative_pose(ra, rb, d):
+    """R = AᵀB and t = Aᵀd from the world rotations (row-major) and d = c_B − c_A."""
+    rel = (_column_dot(ra, 0, rb, 0), _column_dot(ra, 0, rb, 1), _column_dot(ra, 0, rb, 2),
+           _column_dot(ra, 1, rb, 0), _column_dot(ra, 1, rb, 1), _column_dot(ra, 1, rb, 2),
+           _column_dot(ra, 2, rb, 0), _column_dot(ra, 2, rb, 1), _column_dot(ra, 2, rb, 2))
+    t = (ra[0] * d[0] + ra[3] * d[1] + ra[6] * d[2],
+         ra[1] * d[0] + ra[4] * d[1] + ra[7] * d[2],
+         ra[2] * d[0] + ra[5] * d[1] + ra[8] * d[2])
+    return rel, t
+
+
+@kernel
+def _column_dot(ra, i, rb, j):
+    return ra[i] * rb[j] + ra[3 + i] * rb[3 + j] + ra[6 + i] * rb[6 + j]
+
+
+@kernel
+def _column(rel, j):
+    """Return B's axis j in A's frame."""
+    return rel[j], rel[3 + j], rel[6 + j]
+
+
+@kernel
+def _dot(u, v):
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+@kernel
+def _separating_axis_test(rel, t, ea, eb, tie):
+    """Return (status, overlap, axis number) of the pair, in A's frame.
+
+    Separated: the (negative) overlap on the first separating axis found. Colliding: the
+    least overlap and its axis.
+    """
+    faces = (_face_a_overlap(rel, t, ea, eb, 0), _face_a_overlap(rel, t, ea, eb, 1),
+             _face_a_overlap(rel, t, ea, eb, 2), _face_b_overlap(rel, t, ea, eb, 0),
+             _face_b_overlap(rel, t, ea, eb, 1), _face_b_overlap(rel, t, ea, eb, 2))
     best = np.inf
-    best_kind = -1  # 0: face of A, 1: face of B, 2: edge of A × edge of B
-    best_i = 0
-    best_j = 0
-    for i in range(3):
-        radius_b = eb[0] * abs(rel[i, 0]) + eb[1] * abs(rel[i, 1]) + eb[2] * abs(rel[i, 2])
-        overlap = ea[i] + radius_b - abs(t[i])
+    best_id = 0
+    axis_id = 0
+    for overlap in faces:
         if overlap < 0.0:
-            return SEPARATED, overlap
-        if overlap != overlap:
-            return INVALID, overlap
+            return SEPARATED, overlap, axis_id
         if overlap < best:
-            best, best_kind, best_i = overlap, 0, i
-    for j in range(3):
-        radius_a = ea[0] * abs(rel[0, j]) + ea[1] * abs(rel[1, j]) + ea[2] * abs(rel[2, j])
-        dist = abs(t[0] * rel[0, j] + t[1] * rel[1, j] + t[2] * rel[2, j])
-        overlap = radius_a + eb[j] - dist
-        if overlap < 0.0:
-            return SEPARATED, overlap
-        if overlap != overlap:
-            return INVALID, overlap
-        if overlap < best:
-            best, best_kind, best_j = overlap, 1, j
+            best, best_id = overlap, axis_id
+        axis_id += 1
+    # Face axes win ties: an edge axis has to beat them by the touching tolerance.
     best_face = best
-    for i in range(3):
-        i1 = (i + 1) % 3
-        i2 = (i + 2) % 3
-        for j in range(3):
-            # axis = e_i × b_j; its i-th component is 0, the others come straight from R,
-            # so the cross product itself adds no rounding.
-            length = math.sqrt(rel[i1, j] * rel[i1, j] + rel[i2, j] * rel[i2, j])
-            if length < MIN_EDGE_AXIS_LENGTH:
-                continue
-            n1 = -rel[i2, j] / length
-            n2 = rel[i1, j] / length
-            radius_a = ea[i1] * abs(n1) + ea[i2] * abs(n2)
-            radius_b = 0.0
-            for m in range(3):
-                radius_b += eb[m] * abs(n1 * rel[i1, m] + n2 * rel[i2, m])
-            overlap = radius_a + radius_b - abs(n1 * t[i1] + n2 * t[i2])
-            if overlap < 0.0:
-                return SEPARATED, overlap
-            if overlap != overlap:
-                return INVALID, overlap
-            if overlap < best and overlap < best_face - tie:
-                best, best_kind, best_i, best_j = overlap, 2, i, j
+    edges = (_edge_overlap(rel, t, ea, eb, 0, 0), _edge_overlap(rel, t, ea, eb, 0, 1),
+             _edge_overlap(rel, t, ea, eb, 0, 2), _edge_overlap(rel, t, ea, eb, 1, 0),
+             _edge_overlap(rel, t, ea, eb, 1, 1), _edge_overlap(rel, t, ea, eb, 1, 2),
+             _edge_overlap(rel, t, ea, eb, 2, 0), _edge_overlap(rel, t, ea, eb, 2, 1),
+             _edge_overlap(rel, t, ea, eb, 2, 2))
+    for overlap, length_sq in edges:
+        # overlap is scaled by the axis length: its sign needs no normalising, and
+        # overlap / length < limit is compared squared (both sides >= 0) without a root.
+        if overlap < 0.0:
+            return SEPARATED, overlap / math.sqrt(length_sq), axis_id
+        limit = min(best, best_face - tie)
+        if (length_sq >= MIN_EDGE_AXIS_LENGTH ** 2 and limit > 0.0
+                and overlap * overlap < limit * limit * length_sq):
+            best, best_id = overlap / math.sqrt(length_sq), axis_id
+        axis_id += 1
+    return COLLIDING, best, best_id
 
-    if best_kind == 0:
-        _face_a_contact(ea, eb, rel, t, best_i, best, axis, local_point)
-    elif best_kind == 1:
-        _face_b_contact(ea, eb, rel, t, best_j, best, axis, local_point)
-    else:
-        _edge_contact(ea, eb, rel, t, best_i, best_j, axis, local_point)
-    return COLLIDING, best
+
+@kernel
+def _face_a_overlap(rel, t, ea, eb, i):
+    radius_b = eb[0] * abs(rel[3 * i]) + eb[1] * abs(rel[3 * i + 1]) + eb[2] * abs(rel[3 * i + 2])
+    return ea[i] + radius_b - abs(t[i])
+
+
+@kernel
+def _face_b_overlap(rel, t, ea, eb, j):
+    b_j = _column(rel, j)
+    radius_a = ea[0] * abs(b_j[0]) + ea[1] * abs(b_j[1]) + ea[2] * abs(b_j[2])
+    return radius_a + eb[j] - abs(_dot(t, b_j))
+
+
+@kernel
+def _edge_overlap(rel, t, ea, eb, i, j):
+    """Return (overlap × |L|, |L|²) on the axis L = e_i × b_j, not normalised.
+
+    In A's frame L = (0, −R[i2, j], R[i1, j]) in the order (i, i1, i2) = (i, i+1, i+2 mod 3):
+    straight from R, so the cross product adds no rounding.
+    """
+    i1 = (i + 1) % 3
+    i2 = (i + 2) % 3
+    u1 = -rel[3 * i2 + j]
+    u2 = rel[3 * i1 + j]
+    radius_a = ea[i1] * abs(u1) + ea[i2] * abs(u2)
+    # B's radius from the full dot products L·b_m, not from the cofactor identity
+    # (e_i × b_j)·b_m = ±R[i, k]: that identity needs an exactly orthonormal B and is off by
+    # eps/|L| for near-parallel edges. The term m = j is exactly 0 (u1·u2 − u2·u1).
+    radius_b = 0.0
+    for m in range(3):
+        if m != j:
+            radius_b += eb[m] * abs(u1 * rel[3 * i1 + m] + u2 * rel[3 * i2 + m])
+    return radius_a + radius_b - abs(u1 * t[i1] + u2 * t[i2]), u1 * u1 + u2 * u2
 
 
 @kernel
@@ -170,88 +288,117 @@ def _sign_of(x):
 
 
 @kernel
-def _face_a_contact(ea, eb, rel, t, i, depth, axis, p):
-    """Axis e_i of A: B's deepest feature, clamped to A's face, halfway through the overlap."""
-    s = 1.0 if t[i] >= 0.0 else -1.0
-    for m in range(3):
-        axis[m] = 0.0
-        p[m] = t[m]
-    axis[i] = s
-    for k in range(3):
-        toward = _sign_of(s * rel[i, k])  # B's axis k along the normal
-        for m in range(3):
-            p[m] -= eb[k] * toward * rel[m, k]
-    for m in range(3):
-        if m != i:
-            p[m] = min(max(p[m], -ea[m]), ea[m])
-    p[i] = s * (ea[i] - 0.5 * depth)
-
-
-@kernel
-def _face_b_contact(ea, eb, rel, t, j, depth, axis, p):
-    """Axis b_j of B: A's deepest feature, clamped to B's face, halfway through the overlap."""
-    length = math.sqrt(rel[0, j] ** 2 + rel[1, j] ** 2 + rel[2, j] ** 2)
-    s = 1.0 if t[0] * rel[0, j] + t[1] * rel[1, j] + t[2] * rel[2, j] >= 0.0 else -1.0
-    for m in range(3):
-        axis[m] = s * rel[m, j] / length
-    # A's support point along +axis, as coordinates u in B's frame relative to B's centre.
-    u0 = 0.0
-    u1 = 0.0
-    u2 = 0.0
-    for m in range(3):
-        q = ea[m] * _sign_of(axis[m]) - t[m]
-        u0 += rel[m, 0] * q
-        u1 += rel[m, 1] * q
-        u2 += rel[m, 2] * q
-    u0 = min(max(u0, -eb[0]), eb[0])
-    u1 = min(max(u1, -eb[1]), eb[1])
-    u2 = min(max(u2, -eb[2]), eb[2])
-    face = -s * (eb[j] - 0.5 * depth)
-    if j == 0:
-        u0 = face
-    elif j == 1:
-        u1 = face
+def _contact(rel, t, ea, eb, tie, axis_id):
+    """Return the unit axis (A → B) and the contact point, in A's frame."""
+    if axis_id < _FIRST_B_FACE:
+        s = 1.0 if t[axis_id] >= 0.0 else -1.0
+        axis = (s if axis_id == 0 else 0.0, s if axis_id == 1 else 0.0,
+                s if axis_id == 2 else 0.0)
+        first = _B_FEATURE_IN_A
+    elif axis_id < _FIRST_EDGE:
+        b_j = _column(rel, axis_id - _FIRST_B_FACE)
+        s = 1.0 if _dot(t, b_j) >= 0.0 else -1.0
+        axis = (s * b_j[0], s * b_j[1], s * b_j[2])
+        first = _A_FEATURE_IN_B
     else:
-        u2 = face
-    for m in range(3):
-        p[m] = t[m] + rel[m, 0] * u0 + rel[m, 1] * u1 + rel[m, 2] * u2
+        axis = _edge_axis(rel, t, (axis_id - _FIRST_EDGE) // 3, (axis_id - _FIRST_EDGE) % 3)
+        first = _EDGE_CLOSEST_POINTS
+    # The anchor that belongs to the axis first, then the others (the closest points of the
+    # edges only exist for an edge axis).
+    for attempt in range(3):
+        anchor = (first + attempt) % 3
+        if anchor == _EDGE_CLOSEST_POINTS and first != _EDGE_CLOSEST_POINTS:
+            continue
+        found, p = _chord_midpoint(rel, t, ea, eb, tie, axis,
+                                   _anchor(rel, t, ea, eb, anchor, axis_id, axis))
+        if found:
+            return axis, p
+    return axis, _anchor(rel, t, ea, eb, first, axis_id, axis)
 
 
 @kernel
-def _edge_contact(ea, eb, rel, t, i, j, axis, p):
-    """Axis e_i × b_j: midpoint of the closest points of A's and B's supporting edges."""
+def _edge_axis(rel, t, i, j):
+    """Return the unit axis e_i × b_j, turned to point from A to B."""
     i1 = (i + 1) % 3
     i2 = (i + 2) % 3
-    length = math.sqrt(rel[i1, j] ** 2 + rel[i2, j] ** 2)
-    axis[i] = 0.0
-    axis[i1] = -rel[i2, j] / length
-    axis[i2] = rel[i1, j] / length
-    if axis[i1] * t[i1] + axis[i2] * t[i2] < 0.0:
-        axis[i1] = -axis[i1]
-        axis[i2] = -axis[i2]
-    # A's edge runs along e_i through A's support point along +axis (kept in p);
+    u1 = -rel[3 * i2 + j]
+    u2 = rel[3 * i1 + j]
+    length = math.sqrt(u1 * u1 + u2 * u2)
+    if u1 * t[i1] + u2 * t[i2] < 0.0:
+        length = -length
+    u1 /= length
+    u2 /= length
+    if i == 0:
+        return 0.0, u1, u2
+    if i == 1:
+        return u2, 0.0, u1
+    return u1, u2, 0.0
+
+
+@kernel
+def _anchor(rel, t, ea, eb, anchor, axis_id, axis):
+    if anchor == _B_FEATURE_IN_A:
+        return _b_feature_in_a(rel, t, ea, eb, axis)
+    if anchor == _A_FEATURE_IN_B:
+        return _a_feature_in_b(rel, t, ea, eb, axis)
+    return _edge_closest_points(rel, t, ea, eb, (axis_id - _FIRST_EDGE) // 3,
+                                (axis_id - _FIRST_EDGE) % 3, axis)
+
+
+@kernel
+def _b_feature_in_a(rel, t, ea, eb, axis):
+    """Return the middle of B's deepest feature along −axis, clamped into A."""
+    p = _minus_support(rel, t, eb, axis, -1)
+    return (min(max(p[0], -ea[0]), ea[0]), min(max(p[1], -ea[1]), ea[1]),
+            min(max(p[2], -ea[2]), ea[2]))
+
+
+@kernel
+def _minus_support(rel, t, eb, axis, skip):
+    """Return the middle of B's deepest feature along −axis (leaving out B's axis ``skip``)."""
+    p = _step_back(t, rel, eb, axis, 0, skip)
+    p = _step_back(p, rel, eb, axis, 1, skip)
+    return _step_back(p, rel, eb, axis, 2, skip)
+
+
+@kernel
+def _step_back(p, rel, eb, axis, k, skip):
+    """Move ``p`` along B's axis k to B's side that faces −axis (unless k == skip)."""
+    b_k = _column(rel, k)
+    toward = eb[k] * _sign_of(_dot(axis, b_k)) if k != skip else 0.0
+    return p[0] - toward * b_k[0], p[1] - toward * b_k[1], p[2] - toward * b_k[2]
+
+
+@kernel
+def _a_feature_in_b(rel, t, ea, eb, axis):
+    """Return the middle of A's deepest feature along +axis, clamped into B (A's frame)."""
+    q = (ea[0] * _sign_of(axis[0]) - t[0], ea[1] * _sign_of(axis[1]) - t[1],
+         ea[2] * _sign_of(axis[2]) - t[2])
+    u0 = min(max(_dot(_column(rel, 0), q), -eb[0]), eb[0])
+    u1 = min(max(_dot(_column(rel, 1), q), -eb[1]), eb[1])
+    u2 = min(max(_dot(_column(rel, 2), q), -eb[2]), eb[2])
+    return (t[0] + rel[0] * u0 + rel[1] * u1 + rel[2] * u2,
+            t[1] + rel[3] * u0 + rel[4] * u1 + rel[5] * u2,
+            t[2] + rel[6] * u0 + rel[7] * u1 + rel[8] * u2)
+
+
+@kernel
+def _edge_closest_points(rel, t, ea, eb, i, j, axis):
+    """Midpoint of the closest points of A's and B's edges that support the edge axis."""
+    # A's edge runs along e_i through A's support point along +axis (pa);
     # B's edge runs along b_j through B's support point along -axis (pb).
-    p[i] = 0.0
-    p[i1] = ea[i1] * _sign_of(axis[i1])
-    p[i2] = ea[i2] * _sign_of(axis[i2])
-    pb0 = t[0]
-    pb1 = t[1]
-    pb2 = t[2]
-    for k in range(3):
-        if k != j:
-            toward = _sign_of(axis[0] * rel[0, k] + axis[1] * rel[1, k] + axis[2] * rel[2, k])
-            pb0 -= eb[k] * toward * rel[0, k]
-            pb1 -= eb[k] * toward * rel[1, k]
-            pb2 -= eb[k] * toward * rel[2, k]
-    # Closest points of P(s) = p + s e_i, |s| <= ea_i, and Q(u) = pb + u b_j, |u| <= eb_j
+    pa = (ea[0] * _sign_of(axis[0]) if i != 0 else 0.0,
+          ea[1] * _sign_of(axis[1]) if i != 1 else 0.0,
+          ea[2] * _sign_of(axis[2]) if i != 2 else 0.0)
+    pb = _minus_support(rel, t, eb, axis, j)
+    b_j = _column(rel, j)
+    # Closest points of P(s) = pa + s e_i, |s| <= ea_i, and Q(u) = pb + u b_j, |u| <= eb_j
     # (Ericson, Real-Time Collision Detection, 5.1.9, with centred parameters).
-    r0 = p[0] - pb0
-    r1 = p[1] - pb1
-    r2 = p[2] - pb2
-    c = r0 if i == 0 else (r1 if i == 1 else r2)
-    f = rel[0, j] * r0 + rel[1, j] * r1 + rel[2, j] * r2
-    b_len_sq = rel[0, j] ** 2 + rel[1, j] ** 2 + rel[2, j] ** 2
-    cos_ab = rel[i, j]
+    r = (pa[0] - pb[0], pa[1] - pb[1], pa[2] - pb[2])
+    c = r[i]
+    f = _dot(b_j, r)
+    b_len_sq = _dot(b_j, b_j)
+    cos_ab = b_j[i]
     denom = b_len_sq - cos_ab * cos_ab
     s = 0.0
     if denom > 0.0:
@@ -260,7 +407,56 @@ def _edge_contact(ea, eb, rel, t, i, j, axis, p):
     if u < -eb[j] or u > eb[j]:
         u = min(max(u, -eb[j]), eb[j])
         s = min(max(cos_ab * u - c, -ea[i]), ea[i])
-    p[i] += s
-    p[0] = 0.5 * (p[0] + pb0 + u * rel[0, j])
-    p[1] = 0.5 * (p[1] + pb1 + u * rel[1, j])
-    p[2] = 0.5 * (p[2] + pb2 + u * rel[2, j])
+    return (0.5 * (pa[0] + (s if i == 0 else 0.0) + pb[0] + u * b_j[0]),
+            0.5 * (pa[1] + (s if i == 1 else 0.0) + pb[1] + u * b_j[1]),
+            0.5 * (pa[2] + (s if i == 2 else 0.0) + pb[2] + u * b_j[2]))
+
+
+@kernel
+def _chord_midpoint(rel, t, ea, eb, tie, axis, p):
+    """Return (True, the middle of the chord both boxes cut from the line p + s·axis).
+
+    Or (False, p) when the line misses a box by more than the touching tolerance.
+    """
+    # Each slab as |x + s·y| <= e: A's three in A's frame, B's three in B's frame.
+    offset = (p[0] - t[0], p[1] - t[1], p[2] - t[2])
+    b_0, b_1, b_2 = _column(rel, 0), _column(rel, 1), _column(rel, 2)
+    slabs = ((p[0], axis[0], ea[0]), (p[1], axis[1], ea[1]), (p[2], axis[2], ea[2]),
+             (_dot(b_0, offset), _dot(b_0, axis), eb[0]),
+             (_dot(b_1, offset), _dot(b_1, axis), eb[1]),
+             (_dot(b_2, offset), _dot(b_2, axis), eb[2]))
+    # (low, high, |y| of the slab that set low, |y| of the one that set high, still open)
+    chord = (-np.inf, np.inf, 0.0, 0.0, True)
+    for slab in slabs:
+        chord = _clip(chord, slab, tie)
+    low, high, low_slope, high_slope, open_ = chord
+    if not open_:
+        return False, p
+    if low <= high:
+        s = 0.5 * (low + high)
+    else:
+        # Empty, maybe by rounding: a slab nearly parallel to the line turns a tiny excess
+        # into a large step in s. Take the s that leaves the two crossing slabs by the same
+        # distance, and accept it if no slab is left by more than the touching tolerance.
+        s = (low * low_slope + high * high_slope) / (low_slope + high_slope)
+        for x, y, e in slabs:
+            if not abs(x + s * y) <= e + tie:
+                return False, p
+    return True, (p[0] + s * axis[0], p[1] + s * axis[1], p[2] + s * axis[2])
+
+
+@kernel
+def _clip(chord, slab, tie):
+    """Narrow the chord's parameter range to the slab |x + s·y| <= e."""
+    low, high, low_slope, high_slope, open_ = chord
+    x, y, e = slab
+    if y == 0.0:
+        return low, high, low_slope, high_slope, open_ and abs(x) <= e + tie
+    inverse = 1.0 / y
+    s0 = (-e - x) * inverse
+    s1 = (e - x) * inverse
+    if min(s0, s1) > low:
+        low, low_slope = min(s0, s1), abs(y)
+    if max(s0, s1) < high:
+        high, high_slope = max(s0, s1), abs(y)
+    return low, high, low_slope, high_slope, open_
