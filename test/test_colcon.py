@@ -5,6 +5,7 @@ colcon-library-path, colcon-bash from PyPI, next to the ROS wheels), as a user w
 ``pip install``: ``colcon build``, ``source install/setup.bash``, then what ``ros2 run
 collision_node collision_node`` starts, ``lib/collision_node/collision_node``.
 """
+import glob
 import os
 import random
 import shutil
@@ -15,6 +16,7 @@ import time
 
 from collision_node.cdr import serialize_pose_array
 from collision_node.messages import cloud_to_contacts
+from collision_node.node import warm_up
 from geometry_msgs.msg import PoseArray
 import numpy as np
 import pytest
@@ -28,8 +30,8 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 COLCON = os.path.join(sys.prefix, 'bin', 'colcon')
 DOMAIN_ID = random.randint(1, 200)  # this module's own DDS domain: no cross-talk
 BUILD_TIMEOUT_S = 120.0
-# The installed package has no numba cache yet: the node compiles its kernels before it
-# answers (about 40 s on a busy 2-core machine). A bound for a hang, not a speed goal.
+# The node loads its kernels before it answers; compiling them instead (a stale cache) takes
+# a minute or two on a busy 2-core machine. A bound for a hang, not a speed goal.
 ANSWER_TIMEOUT_S = 180.0
 # Not part of the package: VCS data, virtualenvs, caches (the numba cache too), old builds.
 NOT_SOURCES = shutil.ignore_patterns(
@@ -59,7 +61,30 @@ def build_workspace(root, *options):
 @pytest.fixture(scope='module')
 def workspace(tmp_path_factory):
     """Return a workspace built the default way (installed copies, no symlinks)."""
-    return build_workspace(tmp_path_factory.mktemp('colcon_ws'))
+    root = build_workspace(tmp_path_factory.mktemp('colcon_ws'))
+    seed_numba_cache(root)
+    return root
+
+
+def seed_numba_cache(workspace):
+    """Copy the source tree's numba cache beside the installed modules.
+
+    A fresh install compiles its kernels once, at the node's first start: a minute or more
+    on a busy 2-core machine. numba keys its cache by the content hash of the source file,
+    which the installed copy shares, so the copied cache is valid there and the node loads
+    its kernels instead. The warm-up fills the source tree's cache first (loading what is
+    there; later tests load what it compiles).
+    """
+    warm_up()
+    installed, = glob.glob(str(workspace / 'install' / PACKAGE / 'lib' / 'python*' /
+                               'site-packages' / PACKAGE))
+    source = os.path.join(REPO, PACKAGE)
+    for path in glob.glob(os.path.join(source, '**', '__pycache__', '*.nb[ic]'),
+                          recursive=True):
+        target = os.path.join(installed, os.path.relpath(path, source))
+        if os.path.isdir(os.path.dirname(os.path.dirname(target))):
+            os.makedirs(os.path.dirname(target), exist_ok=True)
+            shutil.copyfile(path, target)
 
 
 def colcon_environment():
