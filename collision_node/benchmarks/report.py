@@ -281,10 +281,11 @@ def markdown(results, plot_note):
                 'The stages World.step reports (prepare = input checks + set_boxes, narrow = '
                 'SAT + contact assembly, other = the rest of the call), then the same pipeline '
                 'timed stage by stage from the public pieces. Steady state: the ticks timed '
-                'follow %d untimed ones.' % SETTLE_TICKS, '',
+                'follow up to %d untimed ones ("settled").' % SETTLE_TICKS, '',
                 table([('scene', _get('scene')), ('bodies', _get('bodies')),
                        ('broad phase', _phase_label), ('ticks', _ticks),
-                       ('tick', _get('tick_ms')), ('prepare', _get('prepare_ms')),
+                       ('settled', _get('settling_ticks')), ('tick', _get('tick_ms')),
+                       ('prepare', _get('prepare_ms')),
                        ('broad', _get('broad_ms')), ('narrow', _get('narrow_ms')),
                        ('other', _get('other_ms')), ('set_boxes', _get('set_boxes_ms')),
                        ('find_pairs', _get('find_pairs_ms')), ('SAT', _get('sat_ms')),

@@ -6,12 +6,10 @@ rest of ``step`` as seen from outside), and the same pipeline rebuilt from the p
 and timed stage by stage (set_boxes, find_pairs, the SAT with the sphere prefilter, contact
 assembly), which splits the World's stages further.
 """
-import math
 import time
 
 import numpy as np
 
-from collision_node.benchmarks.runs import tick_poses
 from collision_node.broadphase import make_broad_phase, Settings
 from collision_node.contacts import assemble_contacts
 from collision_node.obb import Boxes, set_boxes
@@ -21,6 +19,7 @@ from collision_node.world import World
 WORLD_STAGES = ('tick', 'prepare', 'broad', 'narrow', 'other')
 # Untimed ticks first, so the profile shows the steady state of stateful phases: ``auto``
 # holds a new choice for several ticks before switching, the octree builds its leaves.
+# Settling also ends when it has used the run's time budget.
 SETTLE_TICKS = 10
 PIPELINE_STAGES = ('set_boxes', 'find_pairs', 'sat', 'contacts')
 
@@ -28,8 +27,9 @@ PIPELINE_STAGES = ('set_boxes', 'find_pairs', 'sat', 'contacts')
 def profile_stages(scene, ticks, dt, limits, phase_name='auto'):
     """Median milliseconds per stage over the ticks, both views, keyed by stage name.
 
-    The ticks timed follow SETTLE_TICKS untimed ones; ``limits`` (:class:`.runs.Limits`)
-    stop the run early, the time budget counting from the first timed tick.
+    The ticks timed follow up to SETTLE_TICKS untimed ones (fewer when they use up the time
+    budget); ``limits`` (:class:`.runs.Limits`) stop the run early, and a settling tick over
+    the tick limit skips it.
     """
     n_static = len(scene.static_poses)
     n_dynamic = scene.dynamic_count
@@ -42,30 +42,16 @@ def profile_stages(scene, ticks, dt, limits, phase_name='auto'):
     static_ids = np.arange(n_static)
     ms = {stage: [] for stage in WORLD_STAGES + PIPELINE_STAGES}
     phases_used = set()
+    settled = False
     started = time.perf_counter()
     stopped = None
-    settling_limits = limits._replace(budget_s=math.inf)  # the budget is for timed ticks
-    for tick, poses in tick_poses(scene, SETTLE_TICKS + ticks, dt):
-        timed = tick >= SETTLE_TICKS
-        if tick == SETTLE_TICKS:
-            started = time.perf_counter()
+    tick = 0
+    while len(ms['tick']) < ticks:
+        poses = scene.dynamic_poses(tick * dt)
+        tick += 1
         before = time.perf_counter()
         stats = world.step(poses, scene.dynamic_half_extents).stats
-        tick_ms = 1e3 * (time.perf_counter() - before)
-        if timed:
-            phases_used.add(stats['broad_phase'])
-            ms['tick'].append(tick_ms)
-            for stage in ('prepare', 'broad', 'narrow'):
-                ms[stage].append(stats[stage + '_ms'])
-            ms['other'].append(tick_ms - stats['prepare_ms'] - stats['broad_ms']
-                               - stats['narrow_ms'])
-        stopped = (limits if timed else settling_limits).reason_to_stop(started,
-                                                                        1e-3 * tick_ms)
-        if stopped and not timed:
-            return {'skipped': '%s (untimed settling tick %d)' % (stopped, tick)}
-        if stopped:
-            break
-
+        world_ms = 1e3 * (time.perf_counter() - before)
         times = [time.perf_counter()]
         set_boxes(boxes, n_static, poses, scene.dynamic_half_extents)
         times.append(time.perf_counter())
@@ -76,18 +62,29 @@ def profile_stages(scene, ticks, dt, limits, phase_name='auto'):
         times.append(time.perf_counter())
         assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids)
         times.append(time.perf_counter())
-        if timed:
-            for stage, begin, end in zip(PIPELINE_STAGES, times, times[1:]):
-                ms[stage].append(1e3 * (end - begin))
-        stopped = (limits if timed else settling_limits).reason_to_stop(started,
-                                                                        times[-1] - times[0])
-        if stopped and timed:
-            break
+        slowest_s = max(1e-3 * world_ms, times[-1] - times[0])
+
+        if not settled:
+            if slowest_s > limits.tick_s:
+                return {'skipped': 'a settling (untimed) tick took %.3g s' % slowest_s}
+            if tick >= SETTLE_TICKS or time.perf_counter() - started > limits.budget_s:
+                settled = True
+                started = time.perf_counter()
+            continue
+        phases_used.add(stats['broad_phase'])
+        ms['tick'].append(world_ms)
+        for stage in ('prepare', 'broad', 'narrow'):
+            ms[stage].append(stats[stage + '_ms'])
+        ms['other'].append(world_ms - stats['prepare_ms'] - stats['broad_ms']
+                           - stats['narrow_ms'])
+        for stage, begin, end in zip(PIPELINE_STAGES, times, times[1:]):
+            ms[stage].append(1e3 * (end - begin))
+        stopped = limits.reason_to_stop(started, slowest_s)
         if stopped:
-            return {'skipped': '%s (untimed settling tick %d)' % (stopped, tick)}
-    # The replica may miss the last tick when the World's tick stopped the run.
+            break
     row = {stage + '_ms': float(np.median(values)) for stage, values in ms.items()}
     row.update(scene=scene.name, bodies=n_static + n_dynamic, broad_phase=phase_name,
                phases_used=sorted(phases_used), ticks=len(ms['tick']),
+               settling_ticks=tick - len(ms['tick']),
                stopped=stopped if len(ms['tick']) < ticks else None)
     return row
