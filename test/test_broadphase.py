@@ -351,24 +351,25 @@ def test_kd_tree_rebuild_and_refit_policies_find_the_same_pairs(ratio, builds):
     assert phase.stats['builds'] == builds
 
 
-def test_auto_uses_brute_force_for_small_scenes_and_does_not_flap():
-    scene = uniform(3000)
+def test_auto_does_not_flap_at_a_threshold_but_switches_at_once_when_far_off():
+    scene = uniform(6000, static_fraction=0.0)
     world = World(broad_phase='auto')
-    world.set_static(scene.static_poses[:20], scene.static_half_extents[:20])
     dynamic_poses, extents = scene.dynamic(0)
-    small = world.step(dynamic_poses[:30], extents[:30])
-    assert small.stats['broad_phase'] == 'brute_force'
     names = []
-    for tick in range(60):  # the count jumps around the threshold every other tick
-        count = 1500 if tick % 2 else 30
-        result = world.step(dynamic_poses[:count] + [0.0, 0, 0, 0, 0, 0, 0], extents[:count])
-        names.append(result.stats['broad_phase'])
-    assert len(set(names)) == 1  # no flapping
-    for tick in range(SWITCH_AFTER_TICKS + 1):  # moving, so that no result is reused
-        result = world.step(dynamic_poses[:1500] + [1e-3 * tick, 0, 0, 0, 0, 0, 0],
-                            extents[:1500])
-    assert result.stats['broad_phase'] not in ('brute_force', 'auto')
-    assert world._phase.switches == 1
+    for tick in range(60):  # the count jumps across GRID_BODIES every other tick
+        count = 600 if tick % 2 else 800
+        shifted = dynamic_poses[:count] + [1e-6 * tick, 0, 0, 0, 0, 0, 0]
+        names.append(world.step(shifted, extents[:count]).stats['broad_phase'])
+    assert len(set(names)) == 1, 'flapped'
+    switches = world._phase.switches
+    for tick in range(SWITCH_AFTER_TICKS):  # clearly above: switches after a few ticks
+        shifted = dynamic_poses[:1200] + [1e-6 * tick, 0, 0, 0, 0, 0, 0]
+        names.append(world.step(shifted, extents[:1200]).stats['broad_phase'])
+    assert names[-1] == 'grid' and world._phase.switches <= switches + 1
+    small = world.step(dynamic_poses[:10], extents[:10])  # far below: at once
+    assert small.stats['broad_phase'] == 'brute_force'
+    large = world.step(dynamic_poses, extents)  # 6,000 bodies: no 8 ticks of brute force
+    assert large.stats['broad_phase'] == 'grid'
 
 
 @pytest.mark.parametrize('make_scene, expected', [

@@ -13,7 +13,9 @@ Rule, from the measurements in the README ("Broad phases"):
 Hysteresis: each threshold is moved by ``MARGIN`` away from the phase in use (a scene must
 pass it clearly to leave), and a new choice must hold for ``SWITCH_AFTER_TICKS`` ticks in a row
 before it is taken, so a scene hovering at a threshold does not flap (each switch throws away
-the structures of the phase left, e.g. the grid's static table).
+the structures of the phase left, e.g. the grid's static table). The first tick, and a scene
+beyond a threshold by ``URGENT_MARGIN`` (100,000 bodies arriving while brute force runs: one
+such tick takes seconds), switch at once.
 """
 from collision_node._jit import kernel
 from collision_node.broadphase.brute_force import BruteForce
@@ -24,6 +26,7 @@ BRUTE_FORCE_WORK = 1500   # pair comparisons: brute force below (measured crosso
 GRID_BODIES = 700         # bodies: sweep and prune below, the grid above (crossover 500-1,000)
 PACKED_VOLUME = 0.25      # (extent / mean side)^3 per dynamic box below which a scene is packed
 MARGIN = 1.25             # thresholds move by this factor away from the phase in use
+URGENT_MARGIN = 8.0       # beyond a threshold by this factor: switch without waiting
 SWITCH_AFTER_TICKS = 8    # ticks a new choice must hold before it is taken
 
 PHASES = {phase.name: phase for phase in (BruteForce, SweepAndPrune, Grid)}
@@ -37,10 +40,10 @@ class Auto:
         self._settings = settings
         self._phases = {}
         self._static = None  # (boxes, n_static) of the last set_static, for new phases
-        self._current = BruteForce.name
-        self._wanted = self._current
+        self._current = None
+        self._wanted = None
         self._wanted_for = 0
-        self.name = self._current
+        self.name = BruteForce.name
         self.switches = 0
         self.stats = {}
 
@@ -50,12 +53,16 @@ class Auto:
             phase.set_static(boxes, n_static)
 
     def find_pairs(self, boxes, n_static, n_dynamic):
-        wanted = self._choose(boxes.aabbs, n_static, n_dynamic)
+        wanted = self._choose(boxes.aabbs, n_static, n_dynamic, MARGIN)
         if wanted == self._wanted:
             self._wanted_for += 1
         else:
             self._wanted, self._wanted_for = wanted, 1
-        if wanted != self._current and self._wanted_for >= SWITCH_AFTER_TICKS:
+        if self._current is None:
+            self._current = wanted
+        elif wanted != self._current and (
+                self._wanted_for >= SWITCH_AFTER_TICKS
+                or self._choose(boxes.aabbs, n_static, n_dynamic, URGENT_MARGIN) != self._current):
             self._current = wanted
             self.switches += 1
         phase = self._phase(self._current)
@@ -64,12 +71,14 @@ class Auto:
         self.stats = dict(getattr(phase, 'stats', {}), auto_switches=self.switches)
         return pairs
 
-    def _choose(self, aabbs, n_static, n_dynamic):
+    def _choose(self, aabbs, n_static, n_dynamic, margin):
         """Name the phase the scene asks for, thresholds moved away from the current one."""
         def below(value, threshold, simpler_than):
             """``value < threshold``, the threshold raised while a simpler phase runs."""
+            if self._current is None:
+                return value < threshold
             current_is_simpler = SIMPLER[self._current] < SIMPLER[simpler_than]
-            return value < threshold * (MARGIN if current_is_simpler else 1.0 / MARGIN)
+            return value < threshold * (margin if current_is_simpler else 1.0 / margin)
 
         work = n_dynamic * n_static + n_dynamic * (n_dynamic - 1) // 2
         if below(work, BRUTE_FORCE_WORK, SweepAndPrune.name):
