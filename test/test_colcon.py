@@ -14,9 +14,6 @@ import subprocess
 import sys
 import time
 
-from collision_node.cdr import serialize_pose_array
-from collision_node.messages import cloud_to_contacts
-from collision_node.node import warm_up
 from geometry_msgs.msg import PoseArray
 import numpy as np
 import pytest
@@ -24,6 +21,10 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
+
+from collision_node.cdr import serialize_pose_array
+from collision_node.messages import cloud_to_contacts
+from collision_node.node import warm_up
 
 PACKAGE = 'collision_node'
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -9,9 +9,6 @@ import sys
 import threading
 import time
 
-from collision_node.cdr import parse_pose_array
-from collision_node.messages import CLOUD_DTYPE, contacts_to_cloud
-from collision_node.scenes import make_scene
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray
 import numpy as np
@@ -21,6 +18,10 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
+
+from collision_node.cdr import parse_pose_array
+from collision_node.messages import CLOUD_DTYPE, contacts_to_cloud
+from collision_node.scenes import make_scene
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOMAIN_ID = random.randint(1, 200)  # this module's own DDS domain: no cross-talk

@@ -15,7 +15,6 @@ import subprocess
 import sys
 
 from ament_index_python.packages import get_package_share_directory, PackageNotFoundError
-from collision_node.scenes import ROOM_DYNAMIC_COUNT
 from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -23,6 +22,8 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
+
+from collision_node.scenes import ROOM_DYNAMIC_COUNT
 
 PACKAGE = 'collision_node'
 CONFIG = os.path.join('config', 'default.yaml')

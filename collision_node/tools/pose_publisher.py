@@ -13,8 +13,6 @@ dynamic boxes are published; its static boxes belong in the node's parameters (t
 import argparse
 import sys
 
-from collision_node.cdr import serialize_pose_array
-from collision_node.scenes import make_scene, ROOM_DYNAMIC_COUNT, SCENES
 from geometry_msgs.msg import PoseArray
 import numpy as np
 import rclpy
@@ -24,6 +22,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
+
+from collision_node.cdr import serialize_pose_array
+from collision_node.scenes import make_scene, ROOM_DYNAMIC_COUNT, SCENES
 
 TOPIC = 'dynamic_poses'
 # Scenes other than the room are sized by their total body count (uniform ones keep half of
