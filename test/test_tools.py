@@ -228,15 +228,15 @@ def test_demo_prints_a_summary_every_second_until_ctrl_c():
     reader = threading.Thread(target=lambda: [lines.put(line) for line in demo.stdout])
     reader.start()
     output, ticking = [], []
-    deadline = time.monotonic() + 120.0  # a cold numba cache compiles for tens of seconds
+    deadline = time.monotonic() + 180.0  # a cold numba cache compiles for a minute or two
     try:
-        while len(ticking) < 3 and time.monotonic() < deadline:
+        while len(ticking) < 4 and time.monotonic() < deadline:
             try:
                 line = lines.get(timeout=1.0)
             except queue.Empty:
                 continue
             output.append(line)
-            if 'ticks/s' in line and not line.split()[0] == '0.0':
+            if 'ticks/s' in line and line.split()[0] != '0.0':
                 ticking.append(line)
         demo.send_signal(signal.SIGINT)
         demo.wait(TOOL_TIMEOUT_S)
@@ -244,13 +244,15 @@ def test_demo_prints_a_summary_every_second_until_ctrl_c():
         demo.kill()
         reader.join()
     output = ''.join(output + list(lines.queue))
-    assert len(ticking) == 3, output + demo.stderr.read()
+    assert len(ticking) == 4, output + demo.stderr.read()
     assert demo.returncode == 0, output + demo.stderr.read()
     # The room: 40 moving boxes and the 6 static colliders of config/default.yaml.
     assert re.fullmatch(r' *[0-9.]+ ticks/s \| 46 bodies \| [0-9]+ collisions \| '
-                        r'tick ms median [0-9.]+ p99 [0-9.]+ \| broad phase \w+\n',
+                        r'tick ms median [0-9.]+ p99 [0-9.]+ \| broad phase \w+'
+                        r'( \| (WARN|ERROR): .*)?\n',
                         ticking[-1]), ticking[-1]
-    rates = [float(line.split()[0]) for line in ticking]
+    # The first ticking period may have started before the first input: not a full one.
+    rates = [float(line.split()[0]) for line in ticking[1:]]
     assert all(10.0 < rate < 60.0 for rate in rates), rates  # the publisher sends 30 Hz
     pids = started_pids(output)
     assert len(pids) == 2 and output.count('stopped ') == 2, output
