@@ -6,13 +6,13 @@ turns ``np.isnan`` into ``False`` and reassociates the SAT's sums (DESIGN ยง4, ย
 """
 import numba
 
-JIT_OPTIONS = dict(
-    cache=True,          # ~0.2 s to load a warm cache instead of ~6 s to compile
-    nogil=True,          # kernels release the GIL so rclpy's executor stays responsive
-    error_model='numpy',  # a division by zero gives inf/nan instead of raising in a kernel
-    fastmath=False,
-    boundscheck=False,
-)
+JIT_OPTIONS = {
+    'cache': True,            # ~0.2 s to load a warm cache instead of ~6 s to compile
+    'nogil': True,            # kernels release the GIL so rclpy's executor stays responsive
+    'error_model': 'numpy',   # a division by zero gives inf/nan instead of raising in a kernel
+    'fastmath': False,
+    'boundscheck': False,
+}
 
 
 def kernel(function):

@@ -26,7 +26,7 @@ INSERTION_SORT_MAX = 32
 
 
 def assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids):
-    """The COLLIDING rows of the SAT's output as a sorted CONTACT_DTYPE array.
+    """Return the COLLIDING rows of the SAT's output as a sorted CONTACT_DTYPE array.
 
     ``pairs`` are box rows (static rows first, then dynamic); ``static_ids`` maps a static
     row to the collider id reported for it.

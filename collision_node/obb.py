@@ -135,7 +135,7 @@ def _write_boxes(poses, half_extents, start, centers, rotations, extents, aabbs,
 
 @kernel
 def aabbs_overlap(aabbs, a, b):
-    """True when the (closed) AABBs of boxes a and b overlap or touch."""
+    """Return True when the (closed) AABBs of boxes a and b overlap or touch."""
     for k in range(3):
         if aabbs[a, 0, k] > aabbs[b, 1, k] or aabbs[b, 0, k] > aabbs[a, 1, k]:
             return False
@@ -144,7 +144,7 @@ def aabbs_overlap(aabbs, a, b):
 
 @kernel
 def spheres_apart(centers, radii, a, b):
-    """True when the bounding spheres are apart by more than the touching tolerance.
+    """Return True when the bounding spheres are apart by more than the touching tolerance.
 
     Compares squared distances (the paper's "no square roots"); the radii are stored.
     """

@@ -150,7 +150,7 @@ ROOM_HALF_EXTENTS = (0.1, 0.1, 0.1)  # as config/default.yaml's dynamic.half_ext
 
 
 def room(n=ROOM_DYNAMIC_COUNT, seed=0):
-    """The demo scene: ``n`` boxes drifting through the room of config/default.yaml."""
+    """Return the demo scene: ``n`` boxes drifting through the room of config/default.yaml."""
     rng = np.random.default_rng(seed)
     low, high = np.array(ROOM_BOUNDS)
     statics = list(ROOM_STATICS.values())
@@ -171,7 +171,7 @@ SCENES = {'uniform': uniform, 'clustered': clustered, 'flying_out': flying_out,
 
 
 def make_scene(name, n, seed=0):
-    """The scene called ``name`` (one of :data:`SCENES`) with ``n`` bodies."""
+    """Return the scene called ``name`` (one of :data:`SCENES`) with ``n`` bodies."""
     if name not in SCENES:
         raise ValueError('unknown scene %r; choose one of %s' % (name, ', '.join(SCENES)))
     return SCENES[name](n, seed)
