@@ -13,8 +13,20 @@ holds:
     ``pairs`` is an (P, 2) int64 array of row indices: column 0 is a dynamic box, column 1 a
     static box or a dynamic box with a larger row; no pair twice, no static-static pair. It
     holds at least every pair whose AABBs overlap (``sphere``: whose bounding spheres
-    overlap; both contain every pair of touching boxes). ``compared`` counts the pair comparisons
-    the phase made (the seeds' "compared" column). The array stays valid until the next call.
+    overlap; both contain every pair of touching boxes). ``compared`` counts the pair
+    comparisons the phase made (the seeds' "compared" column): the AABB (or sphere) tests,
+    after the cheap filters that skip a pair without looking at its boxes (a cell phase's
+    first-shared-cell rule, a tree's node boxes, the sweep's sorted order). The array stays
+    valid until the next call.
+``name``
+    The phase's name in :data:`NAMES`; ``auto`` sets it to the phase that ran last.
+``stats`` (optional)
+    A dict of the phase's own counters (octree leaves created and dropped, bodies that stayed
+    in their leaves, sorts, builds, ...) for the diagnostics.
+
+The phases and when to use each: :mod:`~.brute_force`, :mod:`~.sphere`, :mod:`~.octree`,
+:mod:`~.kd_tree`, :mod:`~.sweep_and_prune`, :mod:`~.grid` and :mod:`~.auto` (their module
+docstrings; the numbers are in the README, "Broad phases").
 """
 from numbers import Integral
 from typing import NamedTuple

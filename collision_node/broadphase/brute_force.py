@@ -19,6 +19,7 @@ class BruteForce:
 
     def __init__(self, settings=None):
         self._buffer = PairBuffer()
+        self.stats = {}  # nothing to count beyond ``compared``
 
     def set_static(self, boxes, n_static):
         pass  # nothing to build: every tick compares against all static boxes

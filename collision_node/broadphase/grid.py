@@ -14,10 +14,11 @@ The static table is rebuilt only when the dynamic sizes drift by more than
 ``STATIC_RESIZE_RATIO`` from those it was sized for, or when the dynamic entries outgrow its
 buckets. Without static boxes the lattice follows the dynamic boxes every tick.
 
-Speed comes from memory order: boxes are entered in the order of the previous tick's table
-(neighbours together), buckets are hashed per block of cells (neighbouring cells share cache
-lines), both tables are read sequentially bucket by bucket, each entry carries its AABB, and
-the pair test has no branches.
+Speed comes from memory order and from avoiding unpredictable branches: boxes are entered in
+the order of the previous tick's table (neighbours together) and their AABBs copied in that
+order, buckets are hashed per block of cells (neighbouring cells share cache lines), both
+tables are read sequentially bucket by bucket, and the pair test and the pair output have no
+branches (in a cell a hit is a coin flip).
 
 Invariants: the cell mapping is monotone, so boxes whose AABBs overlap have intersecting
 cell ranges and meet in their first shared cell, in which both are entered; the lattice is

@@ -16,9 +16,10 @@ referenced from every leaf it touches. Each tick:
   leaves is reported once, in its first shared leaf (:mod:`~.cells`).
 
 Static boxes are inserted once per build and never move; static-static pairs are never
-formed. The tree is rebuilt (everything re-inserted) only when the static set changes, the
-depth changes, more than ``OUTSIDE_FRACTION`` of the dynamic boxes have left the root cube or
-the boxes have shrunk into a corner of it. Boxes outside the root cube are clamped into its
+formed. The tree is rebuilt (everything re-inserted, depth chosen again) only when the static
+set changes, the body count outgrows its arrays, more than ``OUTSIDE_FRACTION`` of the
+dynamic boxes have left the root cube since the last build, or all boxes have shrunk into a
+quarter of its side. Boxes outside the root cube are clamped into its
 border leaves: slower, never lost. The root cube covers the central ``ROOT_QUANTILE`` ..
 ``1 - ROOT_QUANTILE`` of the box centres, with ``ROOT_SLACK`` room to grow, so one body far
 away does not stretch the tree over it.
