@@ -228,6 +228,20 @@ def test_world_rejects_a_non_finite_pose_naming_the_body(field, value, reason):
         world.step(poses, half_extents)
 
 
+def test_world_names_the_first_bad_body_in_random_poses():
+    rng = np.random.default_rng(9)
+    world = World(broad_phase='brute_force')
+    good = np.c_[rng.uniform(-2, 2, (50, 3)), np.tile(IDENTITY, (50, 1))]
+    world.step(good, (0.5, 0.5, 0.5))
+    for _ in range(100):
+        poses = good.copy()
+        bad = np.sort(rng.choice(50, size=rng.integers(1, 4), replace=False))
+        for body in bad:
+            poses[body, rng.integers(7)] = rng.choice((np.nan, np.inf, -np.inf))
+        with pytest.raises(ValueError, match='body %d: pose has a NaN or Inf' % bad[0]):
+            world.step(poses, (0.5, 0.5, 0.5))
+
+
 # ---------------------------------------------------------------- q against -q, off-unit q
 
 def test_negated_quaternion_gives_bitwise_identical_results():
