@@ -31,7 +31,7 @@ def marker(header, namespace, marker_type, marker_id, pose, scale, rgba):
 
 def reference(frame_id, sec, nanosec, static_poses, static_extents, static_ids, poses, extents,
               contacts, arrow_orientations):
-    """The MarkerArray built marker by marker (arrow orientations are checked separately)."""
+    """Build the MarkerArray marker by marker (arrow orientations are checked elsewhere)."""
     header = Header(frame_id=frame_id)
     header.stamp.sec, header.stamp.nanosec = sec, nanosec
     colliding = set()

@@ -1,0 +1,636 @@
+"""collision_latency: PoseArray published → collisions received through ROS, node apart.
+
+    collision_latency --quick --json latency.json     # under 2 minutes
+    collision_latency --json latency.json             # 100 ... 100,000 bodies at 10, 100, 1,000 Hz
+
+Prints markdown tables; ``--json`` writes every number. Four sections:
+
+* latency: the node runs as its own process (``python -m collision_node.node``, the console
+  script's code, default parameters but the scene's sizes); this process publishes pre-serialised
+  PoseArrays (only the stamp is patched in, before the send time is taken) and receives the
+  ``collisions`` cloud as raw bytes. Latency = receipt − send on one monotonic clock. Stage
+  times are the node's own /diagnostics (1-s periods; the table gives the median over periods
+  of each period's median, the p99 and max over all). ``publish`` there is the cloud written
+  and published; the node's overhead is parse + publish over the total. Inputs the node had no
+  time for are dropped (depth-1 input queue), so at high rates not every input is answered.
+* output: message object vs pre-serialised bytes for the cloud, written and published, here.
+* skips: what a scene does not need, each against the case that needs it, through
+  ``CollisionNode._check`` (the node's whole tick without the transport), in this process.
+* startup: node process start → first answer, with a fresh numba cache (cold) and again (warm).
+
+Scene: ``scenes.uniform(N)`` (about one colliding pair per body); by default all N bodies come
+in the PoseArray (the node's worst case: every pose parsed, stepped and drawn); ``--statics``
+gives the scene's static half to the node as ``static_colliders`` instead (DESIGN §5's scene).
+"""
+import argparse
+import json
+import os
+import platform
+import shlex
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from typing import NamedTuple
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseArray
+import numpy as np
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+
+from collision_node import diagnostics
+from collision_node.broadphase import NAMES
+from collision_node.cdr import serialize_pose_array
+from collision_node.messages import contacts_to_cloud, serialize_collisions
+from collision_node.node import CollisionNode
+from collision_node.scenes import uniform, UNIFORM_HALF_EXTENTS
+from collision_node.world import World
+
+STATUS_NAME = 'collision_node: collision_check'
+DIAGNOSTIC_PERIOD_S = 1.0
+FRAMES = 16            # distinct pre-serialised inputs cycled through (a repeat would be reused)
+FRAME_DT_S = 1.0 / 60.0  # scene time between frames
+SETTLE_ANSWERS = 12    # answered inputs before a size is measured (auto settles in 8 ticks)
+STRAGGLER_S = 2.0      # after a run: time for answers still on their way
+READY_TIMEOUT_S = 300.0
+SKIP_TICKS = 30        # timed ticks per case of the skips section
+STAMP_OFFSET = 4       # the stamp (int32 sec, uint32 nanosec) follows the CDR header
+INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.RELIABLE)
+OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                        reliability=ReliabilityPolicy.RELIABLE)
+
+
+class Plan(NamedTuple):
+    """What one run covers."""
+
+    sizes: tuple       # bodies
+    rates: tuple       # input messages per second
+    run_s: float       # seconds of input per (size, rate)
+    max_messages: int  # per run, so that slow large runs stay short
+    skip_bodies: int   # size of the skips section's scenes
+    sphere_sizes: tuple
+    startup: bool
+
+
+PLANS = {
+    'full': Plan(sizes=(100, 1000, 10000, 100000), rates=(10, 100, 1000), run_s=10.0,
+                 max_messages=3000, skip_bodies=10000, sphere_sizes=(10000, 100000),
+                 startup=True),
+    'quick': Plan(sizes=(100, 1000, 10000, 100000), rates=(10, 100, 1000), run_s=3.0,
+                  max_messages=600, skip_bodies=10000, sphere_sizes=(10000,), startup=False),
+    'tiny': Plan(sizes=(100,), rates=(20,), run_s=1.0, max_messages=20, skip_bodies=200,
+                 sphere_sizes=(200,), startup=False),
+}
+
+
+def scene_input(bodies, statics, seed=0):
+    """Return (frames of poses, static poses, static half extents, dynamic half extents).
+
+    The dynamic boxes share one size (the scene's mean): per-body sizes would be a 3 x N
+    parameter, which rcl's YAML parser reads in time quadratic in N (106 s for 300,000 values
+    here), and so would the node's start.
+    """
+    scene = uniform(bodies, seed)
+    frames = [scene.dynamic_poses(k * FRAME_DT_S) for k in range(FRAMES)]
+    static_poses, static_extents = scene.static_poses, scene.static_half_extents
+    if not statics:  # the static half comes in the PoseArray as bodies that do not move
+        frames = [np.concatenate([static_poses, poses]) for poses in frames]
+        static_poses, static_extents = static_poses[:0], static_extents[:0]
+    return frames, static_poses, static_extents, np.full(3, np.mean(UNIFORM_HALF_EXTENTS))
+
+
+def node_parameters(static_poses, static_extents, dynamic_extents, broad_phase='auto'):
+    """Return the node's parameters for a scene, as name -> value."""
+    names = ['s%d' % i for i in range(len(static_poses))]
+    values = {'broad_phase': broad_phase,
+              'dynamic.half_extents': dynamic_extents.ravel().tolist(),
+              'diagnostic_updater.period': DIAGNOSTIC_PERIOD_S, 'input_timeout_s': 0.0,
+              'static_colliders': names}
+    for name, pose, extents in zip(names, static_poses.tolist(), static_extents.tolist()):
+        values[name + '.pose'], values[name + '.half_extents'] = pose, extents
+    return values
+
+
+def write_params_file(path, values):
+    """Write a --params-file for the node (JSON is YAML); empty lists (untyped) left out."""
+    with open(path, 'w') as out:
+        json.dump({'collision_node': {'ros__parameters': {
+            name: value for name, value in values.items() if value != []}}}, out)
+
+
+class Client:
+    """This process's side: publishes inputs, records answers and diagnostics by stamp."""
+
+    def __init__(self, context):
+        self.node = rclpy.create_node('collision_latency', context=context)
+        self.poses = self.node.create_publisher(PoseArray, 'dynamic_poses', INPUT_QOS)
+        self.node.create_subscription(PointCloud2, 'collisions', self._on_cloud, OUTPUT_QOS,
+                                      raw=True)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
+                                      OUTPUT_QOS)
+        self.sent = {}       # (sec, nanosec) -> send time
+        self.received = {}   # (sec, nanosec) -> receipt time
+        self.statuses = []   # (receipt time, {key: value})
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        try:
+            self.executor.spin()
+        except Exception:  # noqa: B902 - the context went away at shutdown
+            pass
+
+    def _on_cloud(self, data):
+        now = time.perf_counter()
+        self.received[tuple(np.frombuffer(data, '<u4', 2, STAMP_OFFSET).tolist())] = now
+
+    def _on_diagnostics(self, message):
+        now = time.perf_counter()
+        for status in message.status:
+            if status.name == STATUS_NAME:
+                self.statuses.append((now, {v.key: v.value for v in status.values}))
+
+    def send(self, frame, sec, nanosec):
+        """Publish ``frame`` (CDR bytes) with the stamp patched in; record the send time."""
+        data = b''.join((frame[:STAMP_OFFSET], np.array([sec, nanosec], '<u4').tobytes(),
+                         frame[STAMP_OFFSET + 8:]))
+        self.sent[(sec, nanosec)] = time.perf_counter()
+        self.poses.publish(data)
+
+    def wait(self, condition, timeout_s):
+        deadline = time.perf_counter() + timeout_s
+        while not condition():
+            if time.perf_counter() > deadline:
+                return False
+            time.sleep(0.002)
+        return True
+
+    def close(self):
+        self.executor.shutdown()
+        self._thread.join()
+        self.node.destroy_node()
+
+
+def start_node(params_path, domain_id, cache_dir=None):
+    """Start the node's own process; its log goes to a temporary file."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+    if cache_dir is not None:
+        env['NUMBA_CACHE_DIR'] = cache_dir
+    log = tempfile.TemporaryFile('w+')
+    process = subprocess.Popen(
+        [sys.executable, '-m', 'collision_node.node', '--ros-args', '--params-file',
+         params_path], env=env, stdout=log, stderr=subprocess.STDOUT)
+    return process, log
+
+
+def stop_node(process, log):
+    process.send_signal(signal.SIGINT)
+    try:
+        process.wait(10.0)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+    log.close()
+
+
+def node_failure(process, log):
+    log.seek(0)
+    return 'the node exited with %s:\n%s' % (process.returncode, log.read()[-3000:])
+
+
+def wait_ready(client, process, log, frame, run_id, started):
+    """Send ``frame`` every 0.2 s until the node answers; return s from process start."""
+    k = 0
+    while True:
+        if process.poll() is not None:
+            raise RuntimeError(node_failure(process, log))
+        if time.perf_counter() - started > READY_TIMEOUT_S:
+            raise RuntimeError('the node did not answer within %g s' % READY_TIMEOUT_S)
+        client.send(frame, run_id, k)
+        k += 1
+        if client.wait(lambda: any(key[0] == run_id for key in client.received), 0.2):
+            return min(t for key, t in client.received.items() if key[0] == run_id) - started
+
+
+def settle(client, frames, run_id):
+    """Send inputs one at a time, each after the last was answered (auto picks its phase)."""
+    for k in range(SETTLE_ANSWERS):
+        client.send(frames[k % len(frames)], run_id, k)
+        if not client.wait(lambda: (run_id, k) in client.received, READY_TIMEOUT_S):
+            raise RuntimeError('no answer while settling')
+
+
+def run_rate(client, frames, rate_hz, plan, run_id):
+    """Publish at ``rate_hz`` for plan.run_s (or plan.max_messages); return the row."""
+    count = min(plan.max_messages, max(int(rate_hz * plan.run_s), 1))
+    period = 1.0 / rate_hz
+    start = time.perf_counter()
+    next_send = start
+    for k in range(count):
+        delay = next_send - time.perf_counter()
+        if delay > 0.0:
+            time.sleep(delay)
+        client.send(frames[k % len(frames)], run_id, k)
+        # A publisher that falls behind does not burst to catch up.
+        next_send = max(next_send + period, time.perf_counter())
+    end = time.perf_counter()
+    client.wait(lambda: all((run_id, k) in client.received for k in range(count)),
+                STRAGGLER_S)
+    # Diagnostics periods end at most one period after the last tick.
+    client.wait(lambda: any(t > end + DIAGNOSTIC_PERIOD_S for t, _ in client.statuses),
+                3 * DIAGNOSTIC_PERIOD_S)
+    latencies = np.array([client.received[(run_id, k)] - client.sent[(run_id, k)]
+                          for k in range(count) if (run_id, k) in client.received]) * 1e3
+    statuses = [values for t, values in client.statuses
+                if start < t <= end + DIAGNOSTIC_PERIOD_S + 0.5 and values['ticks'] != '0']
+    row = {'rate_hz': rate_hz, 'sent': count, 'sent_rate_hz': count / max(end - start, 1e-9),
+           'answered': len(latencies)}
+    row.update(percentiles('latency', latencies))
+    row.update(stage_summary(statuses))
+    return row
+
+
+def percentiles(name, values_ms):
+    if not len(values_ms):
+        return dict.fromkeys('%s_ms_%s' % (name, s) for s in ('median', 'p99', 'max'))
+    median, p99 = np.percentile(values_ms, (50, 99), method='higher')
+    return {'%s_ms_median' % name: float(median), '%s_ms_p99' % name: float(p99),
+            '%s_ms_max' % name: float(np.max(values_ms))}
+
+
+def stage_summary(statuses):
+    """Median of the periods' medians, largest p99 and max, per stage; World figures."""
+    row = {}
+    for stage in diagnostics.STAGES:
+        for statistic, combine in (('median', np.median), ('p99', np.max), ('max', np.max)):
+            key = '%s_ms_%s' % (stage, statistic)
+            row[key] = float(combine([float(s[key]) for s in statuses])) if statuses else None
+    last = statuses[-1] if statuses else {}
+    for key in ('broad_phase', 'dynamic_bodies', 'static_bodies', 'candidate_pairs',
+                'colliding_pairs', 'dropped_inputs'):
+        row[key] = last.get(key)
+    return row
+
+
+def latency_section(plan, statics, broad_phase, domain_id, progress):
+    rows = []
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    client = Client(context)
+    try:
+        with tempfile.TemporaryDirectory() as directory:
+            for run, bodies in enumerate(plan.sizes):
+                frames, static_poses, static_extents, dynamic_extents = scene_input(
+                    bodies, statics)
+                frames = [serialize_pose_array(0, 0, 'world', poses) for poses in frames]
+                params_path = os.path.join(directory, 'params_%d.yaml' % bodies)
+                write_params_file(params_path, node_parameters(
+                    static_poses, static_extents, dynamic_extents, broad_phase))
+                started = time.perf_counter()
+                process, log = start_node(params_path, domain_id)
+                try:
+                    base = 1000 * (run + 1)
+                    ready_s = wait_ready(client, process, log, frames[0], base, started)
+                    settle(client, frames, base + 1)
+                    progress('%d bodies: node ready after %.2f s' % (bodies, ready_s))
+                    for k, rate in enumerate(plan.rates):
+                        time.sleep(DIAGNOSTIC_PERIOD_S + 0.1)  # no period spans two runs
+                        row = run_rate(client, frames, rate, plan, base + 2 + k)
+                        row.update(bodies=bodies, poses=bodies - len(static_poses),
+                                   statics=len(static_poses), ready_s=ready_s,
+                                   message_bytes=len(frames[0]))
+                        rows.append(row)
+                        progress('%d bodies at %g Hz: median %s ms, %d of %d answered' % (
+                            bodies, rate, _fmt(row['latency_ms_median']), row['answered'],
+                            row['sent']))
+                        if process.poll() is not None:
+                            raise RuntimeError(node_failure(process, log))
+                finally:
+                    stop_node(process, log)
+    finally:
+        client.close()
+        context.try_shutdown()
+    return rows
+
+
+def _median_ms(function, repeats):
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(times))
+
+
+def output_section(plan, domain_id):
+    """Cloud as a message object vs as bytes: written, and written + published."""
+    rows = []
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = rclpy.create_node('collision_latency_output', context=context)
+    publisher = node.create_publisher(PointCloud2, 'output_probe', OUTPUT_QOS)
+    node.create_subscription(PointCloud2, 'output_probe', lambda _: None, OUTPUT_QOS,
+                             raw=True)
+    try:
+        for bodies in plan.sizes:
+            frames, _, _, extents = scene_input(bodies, statics=False)
+            contacts = World().step(frames[0], extents).contacts
+            repeats = 50 if bodies < 100000 else 10
+            cloud_bytes = serialize_collisions(contacts, 1, 2, 'world')
+            cloud = contacts_to_cloud(contacts, PointCloud2().header)
+            rows.append({
+                'bodies': bodies, 'contacts': len(contacts),
+                'bytes_write_ms': _median_ms(
+                    lambda: serialize_collisions(contacts, 1, 2, 'world'), repeats),
+                'bytes_publish_ms': _median_ms(lambda: publisher.publish(cloud_bytes), repeats),
+                'message_write_ms': _median_ms(
+                    lambda: contacts_to_cloud(contacts, PointCloud2().header), repeats),
+                'message_publish_ms': _median_ms(lambda: publisher.publish(cloud), repeats)})
+    finally:
+        node.destroy_node()
+        context.try_shutdown()
+    return rows
+
+
+class SkipCase(NamedTuple):
+    """A node setup and the inputs it ticks on."""
+
+    name: str
+    parameters: dict
+    frames: list     # CDR inputs, cycled
+
+
+def skip_cases(bodies):
+    """Pairs of (case that needs the work, case that skips it), as SkipCase tuples."""
+    scene = uniform(2 * bodies, seed=3)
+    statics, static_extents = scene.static_poses, scene.static_half_extents
+    few = max(bodies // 10, 1)
+    moving = [scene.dynamic_poses(k * FRAME_DT_S)[:few] for k in range(FRAMES)]
+    all_moving = [scene.dynamic_poses(k * FRAME_DT_S) for k in range(FRAMES)]
+    extents = scene.dynamic_half_extents
+
+    def cdr(frames):
+        return [serialize_pose_array(0, 0, 'world', poses) for poses in frames]
+
+    with_statics = node_parameters(statics, static_extents, extents[:few])
+    one_size = node_parameters(statics, static_extents, extents[0])  # for 1 or 0 poses
+    disabled = dict(with_statics, **{name + '.enabled': False
+                                     for name in with_statics['static_colliders']})
+    as_dynamic = node_parameters(statics[:0], static_extents[:0],
+                                 np.concatenate([static_extents, extents[:few]]))
+    return [
+        ('no dynamic bodies: %d statics' % len(statics),
+         SkipCase('1 dynamic body', one_size, cdr([poses[:1] for poses in moving])),
+         SkipCase('0 dynamic bodies', one_size, cdr([poses[:0] for poses in moving]))),
+        ('identical input: %d dynamic bodies' % len(extents),
+         SkipCase('moving', node_parameters(statics[:0], static_extents[:0], extents),
+                  cdr(all_moving)),
+         SkipCase('same poses again', node_parameters(statics[:0], static_extents[:0], extents),
+                  cdr(all_moving[:1]))),
+        ('static colliders: %d statics, %d dynamic' % (len(statics), few),
+         SkipCase('statics sent as dynamic poses', as_dynamic,
+                  cdr([np.concatenate([statics, poses]) for poses in moving])),
+         SkipCase('statics as colliders', with_statics, cdr(moving))),
+        ('disabled colliders: %d statics, %d dynamic' % (len(statics), few),
+         SkipCase('colliders enabled', with_statics, cdr(moving)),
+         SkipCase('colliders disabled', disabled, cdr(moving))),
+    ]
+
+
+def tick_ms(context, case, ticks):
+    """Median ms of the node's tick (CollisionNode._check) over ``ticks`` inputs."""
+    node = CollisionNode(context=context, parameter_overrides=[
+        Parameter(name, value=value) for name, value in case.parameters.items()
+        if value != []])  # an empty list has no type in rclpy
+    try:
+        for k in range(3):  # the World's first steps build what later ones reuse
+            node._check(case.frames[k % len(case.frames)])
+        times = []
+        for k in range(ticks):
+            start = time.perf_counter()
+            node._check(case.frames[k % len(case.frames)])
+            times.append(time.perf_counter() - start)
+        return 1e3 * float(np.median(times))
+    finally:
+        node.destroy_node()
+
+
+def skips_section(plan, domain_id):
+    rows = []
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    try:
+        for what, needed, skipped in skip_cases(plan.skip_bodies):
+            rows.append({'what': what,
+                         'needed': needed.name, 'needed_ms': tick_ms(context, needed, SKIP_TICKS),
+                         'skipped': skipped.name,
+                         'skipped_ms': tick_ms(context, skipped, SKIP_TICKS)})
+        rows.append(diagnostics_cost())
+    finally:
+        context.try_shutdown()
+    return rows
+
+
+def diagnostics_cost():
+    """µs per Monitor.tick, and ms per report with a full ring of samples."""
+    monitor = diagnostics.Monitor(0.0)
+    stats = dict.fromkeys(diagnostics.WORLD_KEYS, 0)
+    stage_ms = np.linspace(0.1, 1.0, len(diagnostics.STAGES))
+    count = 20000
+    start = time.perf_counter()
+    for k in range(count):
+        monitor.tick(k * 1e-3, stage_ms, stats)
+    per_tick_us = 1e6 * (time.perf_counter() - start) / count
+    start = time.perf_counter()
+    monitor.report(count * 1e-3, 0.0)
+    return {'what': 'diagnostics: per tick, whatever the scene',
+            'needed': 'Monitor.tick (µs)', 'needed_ms': per_tick_us,
+            'skipped': 'report with %d samples (ms, once a period)'
+                       % diagnostics.SAMPLES_PER_PERIOD,
+            'skipped_ms': 1e3 * (time.perf_counter() - start)}
+
+
+def sphere_section(plan):
+    """Time the SAT stage with and without the bounding-sphere test, per scene."""
+    from collision_node.scenes import make_scene
+    rows = []
+    for name in ('uniform', 'clustered', 'flying_out'):
+        for bodies in plan.sphere_sizes:
+            scene = make_scene(name, bodies, seed=4)
+            row = {'scene': name, 'bodies': bodies}
+            for sphere in (True, False):
+                world = World(sphere_prefilter=sphere)
+                world.set_static(scene.static_poses, scene.static_half_extents)
+                narrow = []
+                for k in range(12):
+                    stats = world.step(scene.dynamic_poses(0.3 + k * FRAME_DT_S),
+                                       scene.dynamic_half_extents).stats
+                    narrow.append(stats['narrow_ms'])
+                key = 'on' if sphere else 'off'
+                row['narrow_ms_' + key] = float(np.median(narrow[2:]))
+                row['sat_tests_' + key] = stats['sat_tests']
+                row['candidate_pairs'] = stats['candidate_pairs']
+                row['colliding_pairs'] = stats['colliding_pairs']
+            rows.append(row)
+    return rows
+
+
+def startup_section(domain_id):
+    """Process start → first answer, with an empty numba cache and then with it filled."""
+    rows = []
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    client = Client(context)
+    frames, *_, extents = scene_input(1000, statics=False)
+    frame = serialize_pose_array(0, 0, 'world', frames[0])
+    try:
+        with tempfile.TemporaryDirectory() as directory:
+            params_path = os.path.join(directory, 'params.yaml')
+            write_params_file(params_path, node_parameters(np.zeros((0, 7)), np.zeros((0, 3)),
+                                                           extents))
+            cache = os.path.join(directory, 'numba_cache')
+            for run, cache_state in enumerate(('cold (empty NUMBA_CACHE_DIR)',
+                                               'warm (same NUMBA_CACHE_DIR)')):
+                started = time.perf_counter()
+                process, log = start_node(params_path, domain_id, cache)
+                try:
+                    ready_s = wait_ready(client, process, log, frame, 9000 + run, started)
+                finally:
+                    stop_node(process, log)
+                rows.append({'cache': cache_state, 'ready_s': ready_s})
+    finally:
+        client.close()
+        context.try_shutdown()
+    return rows
+
+
+def _fmt(value, digits=3):
+    if value is None:
+        return '—'
+    if isinstance(value, float):
+        return '%.*g' % (digits, value)
+    return str(value)
+
+
+def markdown(results):
+    out = ['# collision_latency', '', '`%s`' % results['command'], '',
+           '%s; %s; Python %s' % (results['machine'], results['rmw'], results['python']), '']
+    rows = results.get('latency', [])
+    if rows:
+        out += ['## PoseArray in → collisions out (ms)', '',
+                "Stage columns: the node's /diagnostics, median over 1-s periods of the "
+                "period's median. overhead = (parse + publish) / total.", '',
+                '| bodies | poses | statics | rate Hz | sent/s | answered | median | p99 | max '
+                '| parse | broad | narrow | publish | total | overhead | phase |',
+                '|' + '---|' * 16]
+        for r in rows:
+            overhead = None
+            if r['total_ms_median']:
+                overhead = '%.0f %%' % (100.0 * (r['parse_ms_median'] + r['publish_ms_median'])
+                                        / r['total_ms_median'])
+            out.append('| ' + ' | '.join(_fmt(v) for v in (
+                r['bodies'], r['poses'], r['statics'], r['rate_hz'], round(r['sent_rate_hz']),
+                '%d/%d' % (r['answered'], r['sent']), r['latency_ms_median'],
+                r['latency_ms_p99'], r['latency_ms_max'], r['parse_ms_median'],
+                r['broad_ms_median'], r['narrow_ms_median'], r['publish_ms_median'],
+                r['total_ms_median'], overhead, r['broad_phase'])) + ' |')
+        ready = sorted({(r['bodies'], round(r['ready_s'], 2)) for r in rows})
+        out += ['', 'Node ready (process start → first answer, warm cache): ' + ', '.join(
+            '%d bodies %.2f s' % item for item in ready), '']
+    for title, key, columns in (
+            ('Output: the cloud as bytes vs as a message object (ms)', 'output',
+             ('bodies', 'contacts', 'bytes_write_ms', 'bytes_publish_ms', 'message_write_ms',
+              'message_publish_ms')),
+            ("Skip what a scene does not need: the node's tick, median ms", 'skips',
+             ('what', 'needed', 'needed_ms', 'skipped', 'skipped_ms')),
+            ('Sphere prefilter: SAT stage, median ms', 'sphere',
+             ('scene', 'bodies', 'candidate_pairs', 'colliding_pairs', 'sat_tests_on',
+              'narrow_ms_on', 'narrow_ms_off')),
+            ('Startup: process start → first answer (s)', 'startup', ('cache', 'ready_s'))):
+        if results.get(key):
+            out += ['## ' + title, '', '| ' + ' | '.join(columns) + ' |',
+                    '|' + '---|' * len(columns)]
+            out += ['| ' + ' | '.join(_fmt(r[c]) for c in columns) + ' |'
+                    for r in results[key]]
+            out.append('')
+    return '\n'.join(out)
+
+
+def parse_arguments(argv):
+    parser = argparse.ArgumentParser(prog='collision_latency',
+                                     description=__doc__.split('\n\n')[0])
+    parser.add_argument('--quick', action='store_const', const='quick', dest='plan',
+                        default='full', help='short runs, under 2 minutes')
+    parser.add_argument('--tiny', action='store_const', const='tiny', dest='plan',
+                        help='one small size, seconds (for the tests)')
+    parser.add_argument('--statics', action='store_true',
+                        help="the scene's static half as the node's static_colliders")
+    parser.add_argument('--broad-phase', default='auto', choices=NAMES,
+                        help="the node's broad_phase parameter (default: auto)")
+    parser.add_argument('--sizes', type=int, nargs='+', metavar='N', help='body counts')
+    parser.add_argument('--rates', type=float, nargs='+', metavar='HZ', help='input rates')
+    parser.add_argument('--sections', nargs='+', default=['latency', 'output', 'skips',
+                                                          'sphere', 'startup'],
+                        choices=['latency', 'output', 'skips', 'sphere', 'startup'])
+    parser.add_argument('--json', metavar='FILE', help='write every number here')
+    parser.add_argument('--domain-id', type=int, default=100 + os.getpid() % 100,
+                        help='ROS_DOMAIN_ID of the node and this process')
+    options = parser.parse_args(argv)
+    plan = PLANS[options.plan]
+    if options.sizes:
+        plan = plan._replace(sizes=tuple(options.sizes))
+    if options.rates:
+        if min(options.rates) <= 0:
+            parser.error('--rates must be positive')
+        plan = plan._replace(rates=tuple(options.rates))
+    return options, plan
+
+
+def main(args=None):
+    """Run the sections asked for; print the tables; write JSON if asked."""
+    argv = sys.argv[1:] if args is None else args
+    options, plan = parse_arguments(argv)
+    start = time.perf_counter()
+
+    def progress(message):
+        print('[%6.1f s] %s' % (time.perf_counter() - start, message), file=sys.stderr,
+              flush=True)
+
+    results = {'command': 'collision_latency ' + ' '.join(shlex.quote(a) for a in argv),
+               'machine': '%s, %d cores' % (platform.machine(), os.cpu_count()),
+               'rmw': os.environ.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp (default)'),
+               'python': platform.python_version(), 'plan': plan._asdict()}
+    sections = options.sections
+    if 'latency' in sections:
+        results['latency'] = latency_section(plan, options.statics, options.broad_phase,
+                                             options.domain_id, progress)
+    if 'output' in sections:
+        results['output'] = output_section(plan, options.domain_id)
+        progress('output done')
+    if 'skips' in sections:
+        results['skips'] = skips_section(plan, options.domain_id)
+        progress('skips done')
+    if 'sphere' in sections:
+        results['sphere'] = sphere_section(plan)
+        progress('sphere done')
+    if 'startup' in sections and plan.startup:
+        results['startup'] = startup_section(options.domain_id)
+    results['seconds'] = time.perf_counter() - start
+    print(markdown(results))
+    if options.json:
+        with open(options.json, 'w') as out:
+            json.dump(results, out, indent=1)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
