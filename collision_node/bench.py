@@ -23,8 +23,8 @@ import numpy as np
 from collision_node.benchmarks import report
 from collision_node.benchmarks.accuracy import accuracy_rows
 from collision_node.benchmarks.fcl_reference import compare_with_fcl, fcl_available, INSTALL_HINT
-from collision_node.benchmarks.stages import profile_stages
 from collision_node.benchmarks.runs import Limits, run_all_pairs_sat, run_world, warmed
+from collision_node.benchmarks.stages import profile_stages
 from collision_node.broadphase import NAMES
 from collision_node.scenes import make_scene
 
@@ -352,7 +352,7 @@ class Bench:
         return dict(ids, **row)
 
     def _quickest_phase(self, scene_name, bodies):
-        """The phase with the lowest median tick at the largest measured size <= bodies."""
+        """Name the phase with the lowest median tick at the largest size <= bodies."""
         rows = [row for section in ('paper001', 'scenes') for row in self.results.get(section, [])
                 if row.get('scene') == scene_name and row.get('bodies', 0) <= bodies
                 and 'median_ms' in row and row['broad_phase'] != 'auto']

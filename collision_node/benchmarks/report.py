@@ -158,7 +158,7 @@ def _phase_label(row):
 
 
 def _ticks(row):
-    """The ticks run, and why the run stopped early if it did."""
+    """Give the ticks run, and why the run stopped early if it did."""
     if row.get('stopped'):
         return '%d (%s)' % (row['ticks'], row['stopped'])
     return row['ticks']

@@ -22,8 +22,11 @@ WARM_UP_TICKS = 2
 
 
 class Limits(NamedTuple):
-    """When a run stops early: once it has used ``budget_s`` seconds of wall time, or right
-    after one tick longer than ``tick_s`` (a tick cannot be interrupted, only not repeated)."""
+    """When a run stops early.
+
+    Once it has used ``budget_s`` seconds of wall time, or right after one tick longer than
+    ``tick_s`` (a tick cannot be interrupted, only not repeated).
+    """
 
     budget_s: float
     tick_s: float = math.inf
