@@ -17,7 +17,7 @@ checked against it:
 
 A small subset of every class runs by default; ``-m slow`` runs hundreds per class. Run this
 file as a script to print failure counts per class and check:
-``python test/test_sat_stress.py [cases per class]``.
+``PYTHONPATH=. python test/test_sat_stress.py [cases per class]`` (see ``report``).
 """
 from collections import Counter
 from decimal import Decimal
@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 
 from collision_node import sat
-from collision_node.obb import Boxes, EPS, set_boxes
+from collision_node.obb import Boxes, EPS, set_boxes, TIE_ULPS
 
 # Depth, normal and contact point agree with the exact values to this fraction of the size of
 # the larger box (its largest half extent); float64 rounding alone is ~1e-14 of it.
@@ -326,7 +326,7 @@ def size_of(case):
     return max(case.half_a.max(), case.half_b.max())
 
 
-def check(case, status, depth, normal, point, tolerance):
+def check(case, status, depth, normal, point, tolerance, edge_normal_ulps=EDGE_NORMAL_ULPS):
     """Return the list of failed checks for one pair, and whether it was within tolerance."""
     verdict = exact_sat(*case)
     near_touching = abs(verdict.separation) <= Decimal(tolerance)
@@ -345,7 +345,7 @@ def check(case, status, depth, normal, point, tolerance):
             and signed_offset_along(case.pose_a, case.pose_b, normal) >= -accuracy
             and any(axis.separation >= verdict.separation - accuracy
                     and np.linalg.norm(np.subtract(axis.normal, normal))
-                    <= RELATIVE_ACCURACY + EDGE_NORMAL_ULPS * EPS / axis.sine
+                    <= RELATIVE_ACCURACY + edge_normal_ulps * EPS / axis.sine
                     for axis in verdict.axes)):
         failed.append('normal')
     # The point is in world coordinates: far from the origin, their rounding adds up to
@@ -357,7 +357,8 @@ def check(case, status, depth, normal, point, tolerance):
     return failed, near_touching
 
 
-def failures(name, count, seed=0, collide=None, tolerance=None):
+def failures(name, count, seed=0, collide=None, tolerance=None,
+             edge_normal_ulps=EDGE_NORMAL_ULPS):
     """Count the failed checks over ``count`` cases of class ``name``.
 
     Also counted: 'near_touching', the pairs within the touching tolerance, and 'cases'.
@@ -369,7 +370,7 @@ def failures(name, count, seed=0, collide=None, tolerance=None):
     for k, case in enumerate(cases):
         failed, near = check(case, status[k], depth[k], normal[k], point[k],
                              tolerance(case.pose_a[:3], case.pose_b[:3],
-                                       case.half_a, case.half_b))
+                                       case.half_a, case.half_b), edge_normal_ulps)
         counts.update(failed)
         counts['near_touching'] += near
     return counts
@@ -423,11 +424,44 @@ def test_non_finite_input_is_always_invalid(count):
     assert (prefiltered == sat.INVALID).all()
 
 
-if __name__ == '__main__':
-    count = int(sys.argv[1]) if len(sys.argv) > 1 else SLOW_CASES
+def pair_tolerance(center_a, center_b, half_a, half_b):
+    """Return the documented touching tolerance (sat.py), restated for the report below."""
+    scale = np.sum(half_a) + np.sum(half_b) + np.sum(np.abs(np.subtract(center_b, center_a)))
+    return TIE_ULPS * EPS * scale
+
+
+def initial_tolerance(center_a, center_b, half_a, half_b):
+    """Return the tolerance the first sat.py documented (centres' distance from the origin)."""
+    scale = np.abs(center_a).max() + np.abs(center_b).max() + np.sum(half_a) + np.sum(half_b)
+    return TIE_ULPS * EPS * scale
+
+
+def test_the_restated_tolerance_is_the_documented_one():
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        args = (rng.normal(size=3) * 1e3, rng.normal(size=3), rng.uniform(0, 2, 3),
+                rng.uniform(0, 2, 3))
+        assert pair_tolerance(*args) == pytest.approx(sat.touch_tolerance(*args), rel=1e-15)
+
+
+def report(arguments):
+    """Print failure counts per class (see the module docstring).
+
+    ``[cases] [--initial-tolerance] [--strict]``: the first sat.py's tolerance instead of the
+    documented one; no eps / sin θ allowance for edge×edge normals. Runs against whichever
+    collision_node is first on the path, e.g. an older one via PYTHONPATH.
+    """
+    count = int(arguments[0]) if arguments and arguments[0].isdigit() else SLOW_CASES
+    tolerance = initial_tolerance if '--initial-tolerance' in arguments else pair_tolerance
+    edge_normal_ulps = 0.0 if '--strict' in arguments else EDGE_NORMAL_ULPS
     checks = ('verdict', 'depth', 'normal', 'point', 'invalid')
     print('%-22s %6s %6s ' % ('class', 'cases', 'near') + ' '.join('%7s' % c for c in checks))
     for name in CLASSES:
-        counts = failures(name, count, seed=2)
+        counts = failures(name, count, seed=2, tolerance=tolerance,
+                          edge_normal_ulps=edge_normal_ulps)
         print('%-22s %6d %6d ' % (name, counts['cases'], counts['near_touching'])
               + ' '.join('%7d' % counts[c] for c in checks), flush=True)
+
+
+if __name__ == '__main__':
+    report(sys.argv[1:])
