@@ -7,6 +7,7 @@ dynamic-dynamic pairs from ``collide`` on the dynamic manager, dynamic-static pa
 (a Python call per AABB-overlapping pair: that is how python-fcl is used, and where most of
 its time goes). python-fcl is an optional dependency (the ``bench`` extra).
 """
+import math
 import time
 
 import numpy as np
@@ -90,10 +91,11 @@ class FclWorld:
 def compare_with_fcl(scene, ticks, dt, phase_names, limits):
     """Ticks of python-fcl and of a World per broad phase on the same poses.
 
-    Returns (python-fcl's numbers, one row per broad phase with both and their ratio).
-
-    fcl's time is update + collide (its output is its list of contacts; turning that into
-    rows for the comparison is not timed); the World's is its whole ``step``.
+    Returns (python-fcl's numbers, one row per broad phase with both and their ratio over
+    the ticks that phase ran). fcl's time is update + collide (its output is its list of
+    contacts; turning that into rows for the comparison is not timed); the World's is its
+    whole ``step``. The time budget stops the run; a phase whose tick exceeds the tick limit
+    stops stepping, the others go on.
     """
     from collision_node.benchmarks.accuracy import contact_keys, pair_errors, pair_keys
     from collision_node.benchmarks.runs import tick_poses
@@ -108,7 +110,8 @@ def compare_with_fcl(scene, ticks, dt, phase_names, limits):
         worlds[name] = World(broad_phase=name)
         worlds[name].set_static(scene.static_poses, scene.static_half_extents)
     fcl_ms = {'update': [], 'collide': []}
-    ours = {name: {'ms': [], 'only_ours': 0, 'only_fcl': 0} for name in phase_names}
+    ours = {name: {'ms': [], 'only_ours': 0, 'only_fcl': 0, 'stopped': None}
+            for name in phase_names}
     fcl_pairs = 0
     started = time.perf_counter()
     stopped = None
@@ -119,30 +122,37 @@ def compare_with_fcl(scene, ticks, dt, phase_names, limits):
         fcl_keys = pair_keys(pairs, n_total)
         fcl_pairs += len(fcl_keys)
         for name, world in worlds.items():
+            if ours[name]['stopped']:
+                continue
             before = time.perf_counter()
             contacts = world.step(poses, scene.dynamic_half_extents).contacts
-            ours[name]['ms'].append(1e3 * (time.perf_counter() - before))
+            tick_s = time.perf_counter() - before
+            ours[name]['ms'].append(1e3 * tick_s)
             only_ours, only_fcl = pair_errors(contact_keys(contacts, n_static, n_total),
                                               fcl_keys)
             ours[name]['only_ours'] += only_ours
             ours[name]['only_fcl'] += only_fcl
-        # python-fcl is the reference: only our ticks count against the tick limit.
-        slowest = max([1e-3 * ours[name]['ms'][-1] for name in phase_names], default=0.0)
-        stopped = limits.reason_to_stop(started, slowest)
+            if tick_s > limits.tick_s:
+                ours[name]['stopped'] = limits.reason_to_stop(started, tick_s)
+        stopped = limits._replace(tick_s=math.inf).reason_to_stop(started, 0.0)
         if stopped:
             break
     ticks_done = len(fcl_ms['update'])
-    fcl_median = float(np.median(np.add(fcl_ms['update'], fcl_ms['collide'])))
+    fcl_total = np.add(fcl_ms['update'], fcl_ms['collide'])
     reference = {'scene': scene.name, 'bodies': n_total, 'ticks': ticks_done,
                  'stopped': stopped if ticks_done < ticks else None,
-                 'fcl_median_ms': fcl_median,
+                 'fcl_median_ms': float(np.median(fcl_total)),
                  'fcl_update_ms': float(np.median(fcl_ms['update'])),
                  'fcl_collide_ms': float(np.median(fcl_ms['collide'])),
                  'pairs_per_tick': fcl_pairs / ticks_done}
     rows = []
     for name in phase_names:
+        ran = len(ours[name]['ms'])
         median = float(np.median(ours[name]['ms']))
-        rows.append(dict(reference, broad_phase=name, median_ms=median,
+        fcl_median = float(np.median(fcl_total[:ran]))  # python-fcl on the same ticks
+        rows.append(dict(reference, broad_phase=name, ticks=ran,
+                         stopped=ours[name]['stopped'] or reference['stopped'],
+                         median_ms=median, fcl_median_ms=fcl_median,
                          ratio=fcl_median / median, only_ours=ours[name]['only_ours'],
                          only_fcl=ours[name]['only_fcl']))
     return reference, rows
