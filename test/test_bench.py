@@ -12,6 +12,7 @@ from collision_node.benchmarks.accuracy import (
     SAT_FLOAT64, SPHERES_ONLY)
 from collision_node.benchmarks.runs import all_pairs
 from collision_node.broadphase import NAMES
+from collision_node.scenes import make_scene
 from collision_node.world import CONTACT_DTYPE, DYNAMIC, STATIC
 
 
@@ -115,6 +116,19 @@ def test_brute_force_compares_every_pair(tiny_run):
     dynamic = results['meta']['plan_settings']['paper000_bodies'] // 2
     static = results['meta']['plan_settings']['paper000_bodies'] - dynamic
     assert baseline['compared_max'] == dynamic * static + dynamic * (dynamic - 1) // 2
+
+
+def test_compared_sums_every_pair_for_brute_force(tiny_run):
+    _, _, results = tiny_run
+    rows = [row for row in results['accuracy'] if row['broad_phase'] == 'brute_force']
+    assert rows
+    for row in rows:
+        scene = make_scene(row['scene'], row['bodies'])
+        static, dynamic = len(scene.static_poses), scene.dynamic_count
+        per_tick = dynamic * static + dynamic * (dynamic - 1) // 2
+        assert row['compared'] == row['ticks'] * per_tick
+        if row['mode'] == CLASSIC:  # every pair compared, minus the true ones
+            assert row['false_positives'] == row['compared'] - row['true_pairs']
 
 
 def test_ticks_per_second_are_ordered(tiny_run):

@@ -171,7 +171,7 @@ def measure_modes(scene, dt, truth, phase_name):
 
 
 def accuracy_rows(scene, ticks, dt, phase_names, budget_s, progress=None, skip=None):
-    """One row per (broad phase, mode): errors summed over the ticks, median and p99 ms.
+    """One row per (broad phase, mode): counts summed over the ticks, median and p99 ms.
 
     ``skip(name)`` may give a reason not to run a phase (then one row says so).
     """
@@ -194,7 +194,7 @@ def accuracy_rows(scene, ticks, dt, phase_names, budget_s, progress=None, skip=N
         for mode in MODES:
             ms = np.asarray(modes[mode]['tick_ms'])
             rows.append(dict(_ids(scene, name, mode, len(truth), true_pairs),
-                             compared=int(round(np.mean(compared))),
+                             compared=int(np.sum(compared)),
                              false_positives=modes[mode]['false_positives'],
                              false_negatives=modes[mode]['false_negatives'],
                              median_ms=float(np.median(ms)),

@@ -250,7 +250,8 @@ def markdown(results, plot_note):
                 'every candidate pair it returns (ours already drop pairs whose AABBs are '
                 'apart); "spheres only" / "AABBs only" the candidates whose bounding volumes '
                 'overlap; "SAT float32 boxes" the SAT on the boxes rounded to float32; "SAT '
-                'float64" the World as shipped. "compared" is per tick (mean).', '',
+                'float64" the World as shipped. "compared", "true pairs" and the errors are sums '
+                'over the ticks.', '',
                 table([('scene', _get('scene')), ('bodies', _get('bodies')),
                        ('broad phase', _get('broad_phase')), ('mode', _get('mode')),
                        ('ticks', _ticks), ('compared', _get('compared')),
