@@ -99,7 +99,10 @@ class Grid:
                                     n_static, shift)
 
     def _build_static(self, aabbs, n_static, side, dynamic_entries):
-        """Build the static table with buckets for its entries and ``dynamic_entries``."""
+        """Build the static table; buckets for its entries and twice ``dynamic_entries``.
+
+        The dynamic table shares the static table's buckets, so they must suit both.
+        """
         self._static_side = side
         self._static_lattice = make_lattice(mean_side_and_center(aabbs, 0, n_static)[1], side)
         rows = np.arange(n_static)

@@ -165,7 +165,7 @@ def paper_depth(n_bodies, root_side, mean_side):
 
 
 def size_depth(n_bodies, root_side, mean_side):
-    """The depth whose leaves are closest to ``LEAF_SIDE_FACTOR`` mean AABB sides.
+    """Return the depth whose leaves are closest to ``LEAF_SIDE_FACTOR`` mean AABB sides.
 
     Paper 001's rule grows with log2(n), but in a scene of constant density the root side
     grows as n^(1/3), so the best depth grows three times slower; and the rule ignores the
