@@ -30,12 +30,14 @@ directory is writable and otherwise in its user-wide cache (~/.cache/numba); NUM
 overrides both. The node leaves that choice to numba: the variable must be set before numba is
 imported, which is the launching environment's business, not the node's.
 """
+import copy
 import math
 import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray
+import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -112,8 +114,10 @@ class CollisionNode(Node):
         if config.tick_rate_hz > 0.0:
             self.create_timer(1.0 / config.tick_rate_hz, self._on_tick_timer)
         # Last, after the warm-up: no input is taken before the node can answer it in time.
+        # A copy: rclpy writes the qos_overrides into the profile it is given, and the next
+        # node of this process would start from them.
         self._subscription = self.create_subscription(
-            PoseArray, 'dynamic_poses', self._on_input, INPUT_QOS, raw=True,
+            PoseArray, 'dynamic_poses', self._on_input, copy.copy(INPUT_QOS), raw=True,
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.get_logger().info(
             '%d static colliders (%d enabled), broad phase %s, %s' % (
@@ -267,6 +271,10 @@ def warm_up():
                 world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents)
                 world.step(scene.dynamic_poses(0.5), scene.dynamic_half_extents)
                 world.step(scene.dynamic_poses(1.0), scene.dynamic_half_extents[0])
+                # One size for one body or none: numpy then hands the kernels a read-only
+                # view of the size, a type of its own for numba.
+                world.step(scene.dynamic_poses(1.5)[:1], scene.dynamic_half_extents[0])
+                world.step(np.zeros((0, 7)), scene.dynamic_half_extents[0])
 
 
 def main(args=None):

@@ -1,0 +1,149 @@
+"""JIT: no tick compiles, and numba's cache works when the package is installed read-only.
+
+test_node.py's fresh-process check runs every broad phase on moving input; the check here runs
+the node's other tick paths (static colliders, no dynamic body, one size for all bodies, an
+unchanged input, sphere prefilter off, a collider disabled at run time) after the warm-up.
+
+Read-only installs are copies of the package that the test process cannot write to (for root,
+which ignores file modes, the child drops CAP_DAC_OVERRIDE before it starts).
+"""
+import ctypes
+import os
+import random
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DOMAIN_ID = random.Random(os.getpid() + 11).randint(1, 200)
+# linux/prctl.h, linux/capability.h
+PR_CAPBSET_DROP = 24
+CAP_DAC_OVERRIDE = 1
+CAP_DAC_READ_SEARCH = 2
+
+OTHER_PATHS_CHECK = """
+import sys
+import numba
+import numpy as np
+import rclpy
+from rclpy.parameter import Parameter
+from collision_node import scenes
+from collision_node.cdr import serialize_pose_array
+from collision_node.node import CollisionNode
+
+
+def compiled():
+    return {(module, name): len(item.overloads)
+            for module, loaded in list(sys.modules.items()) if module.startswith('collision_node')
+            for name, item in vars(loaded).items()
+            if isinstance(item, numba.core.registry.CPUDispatcher)}
+
+
+rclpy.init(domain_id=%d)
+room = scenes.room(300, seed=3)
+names = ['c%%d' %% i for i in range(len(room.static_poses))]
+overrides = [Parameter('static_colliders', value=names),
+             Parameter('dynamic.half_extents', value=[0.1, 0.1, 0.1])]
+for name, pose, extents in zip(names, room.static_poses, room.static_half_extents):
+    overrides += [Parameter(name + '.pose', value=pose.tolist()),
+                  Parameter(name + '.half_extents', value=extents.tolist())]
+node = CollisionNode(parameter_overrides=overrides)
+before = compiled()
+for sphere in (True, False):
+    assert node.set_parameters([Parameter('sphere_prefilter', value=sphere)])[0].successful
+    for enabled in (True, False):
+        assert node.set_parameters([Parameter('c0.enabled', value=enabled)])[0].successful
+        for t in (0.0, 0.5, 0.5, 1.0):  # 0.5 twice: the World reuses its answer
+            node._check(serialize_pose_array(1, 0, '', room.dynamic_poses(t)))
+        node._check(serialize_pose_array(1, 0, '', np.zeros((0, 7))))
+after = compiled()
+assert len(before) > 5, before
+changed = {key: (before.get(key), count) for key, count in after.items()
+           if before.get(key) != count}
+sys.exit('compiled during ticks: %%s' %% changed if changed else None)
+""" % DOMAIN_ID
+
+# Decorates every kernel (import), then runs one small one, and says where numba put it.
+CACHE_CHECK = """
+import os
+import sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from collision_node import obb, sat
+assert obb.__file__.startswith(sys.argv[1]), obb.__file__
+obb.spheres_apart(np.zeros((2, 3)), np.ones(2), 0, 1)
+print(obb.spheres_apart._cache._cache_path)
+print(sum(obb.spheres_apart.stats.cache_hits.values()))
+print(sat._collide_pairs._cache._cache_path)
+"""
+
+
+def test_other_tick_paths_compile_nothing():
+    done = subprocess.run([sys.executable, '-c', OTHER_PATHS_CHECK], cwd=REPO,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+
+
+def _without_write_permission():
+    """Drop root's power to ignore file modes in the child (no-op for other users)."""
+    if os.geteuid() == 0:
+        libc = ctypes.CDLL(None, use_errno=True)
+        for capability in (CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH):
+            if libc.prctl(PR_CAPBSET_DROP, capability, 0, 0, 0) != 0:
+                raise OSError(ctypes.get_errno(), 'prctl(PR_CAPBSET_DROP) failed')
+
+
+@pytest.fixture
+def read_only_install(tmp_path):
+    """Copy the package without caches, read-only, and make a writable home beside it."""
+    install = tmp_path / 'site-packages'
+    shutil.copytree(os.path.join(REPO, 'collision_node'), install / 'collision_node',
+                    ignore=shutil.ignore_patterns('__pycache__'))
+    for root, _, files in os.walk(install):
+        for name in files:
+            os.chmod(os.path.join(root, name), 0o444)
+        os.chmod(root, 0o555)
+    home = tmp_path / 'home'
+    home.mkdir()
+    yield install, home
+    for root, _, _ in os.walk(install):
+        os.chmod(root, 0o755)
+
+
+def run_cache_check(install, home, **environment):
+    env = {key: value for key, value in os.environ.items()
+           if key not in ('NUMBA_CACHE_DIR', 'XDG_CACHE_HOME', 'PYTHONPATH')}
+    env.update(HOME=str(home), **environment)
+    done = subprocess.run([sys.executable, '-c', CACHE_CHECK, str(install)], cwd=str(home),
+                          env=env, capture_output=True, text=True, timeout=300,
+                          preexec_fn=_without_write_permission)
+    assert done.returncode == 0, done.stderr[-3000:]
+    cache_path, hits, sat_cache_path = done.stdout.split()
+    return cache_path, int(hits), sat_cache_path
+
+
+def cache_files(directory):
+    return sorted(name for _, _, files in os.walk(directory) for name in files
+                  if name.endswith(('.nbi', '.nbc')))
+
+
+def test_read_only_install_caches_in_the_user_cache(read_only_install):
+    install, home = read_only_install
+    cache_path, hits, sat_cache_path = run_cache_check(install, home)
+    assert cache_path.startswith(str(home / '.cache' / 'numba'))
+    assert sat_cache_path == cache_path  # every kernel, not only the one that ran
+    assert hits == 0 and any(f.startswith('obb.spheres_apart') for f in cache_files(home))
+    assert not cache_files(install)
+    # A second process loads the kernel from there instead of compiling it.
+    assert run_cache_check(install, home)[1] == 1
+
+
+def test_numba_cache_dir_overrides_the_user_cache(read_only_install, tmp_path):
+    install, home = read_only_install
+    chosen = tmp_path / 'chosen'
+    cache_path, _, _ = run_cache_check(install, home, NUMBA_CACHE_DIR=str(chosen))
+    assert cache_path.startswith(str(chosen))
+    assert any(f.startswith('obb.spheres_apart') for f in cache_files(chosen))
+    assert not cache_files(home) and not cache_files(install)
