@@ -130,6 +130,13 @@ def test_fuzzed_buffers_are_rejected_and_counted(harness, count):
     assert all(values(s)['last_rejection'] for s in warnings)
 
 
+def test_qos_overrides_stay_with_their_node(harness):
+    """A deep queue given to one node (as above) is not the next node's default."""
+    deep, plain = harness(input_depth=FUZZ_BURST), harness()
+    assert [s.qos_profile.depth for s in deep.node.subscriptions] == [FUZZ_BURST]
+    assert [s.qos_profile.depth for s in plain.node.subscriptions] == [1]
+
+
 def test_extreme_finite_coordinates_never_stop_the_node(harness):
     """Poses near the float64 limit: answered correctly or rejected, in every broad phase."""
     room = harness()
