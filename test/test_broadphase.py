@@ -23,7 +23,7 @@ IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
 
 def still(static_poses, static_extents, dynamic_poses, dynamic_extents):
-    """A scene whose dynamic boxes do not move."""
+    """Make a scene whose dynamic boxes do not move."""
     dynamic = (np.asarray(dynamic_poses, float).reshape(-1, 7),
                np.asarray(dynamic_extents, float).reshape(-1, 3))
     return Scene(static_poses, static_extents, lambda tick: dynamic)
@@ -62,7 +62,7 @@ def big_boxes_scene(seed=2):
 
 
 def touching_scene():
-    """Unit cubes on a lattice of pitch 1: neighbours touch face to face, edge and corner."""
+    """Put unit cubes on a lattice of pitch 1: neighbours touch by faces, edges, corners."""
     grid = np.stack(np.meshgrid(*[np.arange(5.0)] * 3, indexing='ij'), -1).reshape(-1, 3)
     static = grid[::2]
     dynamic = grid[1::2]
@@ -402,9 +402,9 @@ def test_octree_settings_change_at_run_time():
     world.set_static(scene.static_poses, scene.static_half_extents)
     reference = World(broad_phase='brute_force')
     reference.set_static(scene.static_poses, scene.static_half_extents)
-    for tick, settings in enumerate([dict(octree_max_depth=2), dict(octree_max_depth=5),
-                                     dict(octree_leaf_cooldown_ticks=0),
-                                     dict(broad_phase='grid')]):
+    for tick, settings in enumerate([{'octree_max_depth': 2}, {'octree_max_depth': 5},
+                                     {'octree_leaf_cooldown_ticks': 0},
+                                     {'broad_phase': 'grid'}]):
         world.configure(**settings)
         poses_now, extents = scene.dynamic(tick)
         assert np.array_equal(contact_ids(world.step(poses_now, extents)),
