@@ -70,7 +70,7 @@ def test_identical_input_reuses_the_answer(scene, monkeypatch):
 
 
 def changed_inputs(scene):
-    """Inputs that differ from the last one in the least way each, and a fresh World's answer."""
+    """Return the first input and inputs that each differ from it in the least way."""
     poses = scene.dynamic_poses(0.3)
     moved = poses.copy()
     moved[5, 0] = np.nextafter(moved[5, 0], np.inf)  # one ulp: not the same input
