@@ -1,6 +1,8 @@
 """Per-tick time of every broad phase through World.step, for the README's table.
 
     python test/broadphase_bench.py [--sizes 1000 10000 100000] [--scenes uniform ...]
+    python test/broadphase_bench.py --study kd_tree   # rebuild or refit (kd_tree docstring)
+    python test/broadphase_bench.py --study octree    # depth rules (octree docstring)
 
 Prints one row per (scene, bodies, phase): median broad, narrow and broad + narrow
 milliseconds per tick (World's wall-clock stage timings) over the measured ticks (the first,
@@ -21,7 +23,50 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from collision_node import scenes, World  # noqa: E402 (after the path set-up)
-from collision_node.broadphase import NAMES  # noqa: E402
+from collision_node.broadphase import NAMES, Settings  # noqa: E402
+from collision_node.broadphase.kd_tree import KdTreePhase  # noqa: E402
+from collision_node.broadphase.octree import Octree  # noqa: E402
+from collision_node.obb import Boxes, set_boxes  # noqa: E402
+
+# (scene, bodies, ticks, seconds per tick) of the two studies
+STUDY_SCENES = [('flying_out', 1024, 300, 1 / 60), ('uniform', 1024, 60, 1 / 30),
+                ('clustered', 1024, 60, 1 / 30), ('flying_out', 10000, 60, 1 / 15),
+                ('uniform', 10000, 100, 1 / 30), ('clustered', 10000, 100, 1 / 30)]
+
+
+def phase_cpu_ms(scene, phase, ticks, dt):
+    """CPU ms per tick of ``phase.find_pairs`` alone over ``ticks`` ticks after the first."""
+    n_static, n_dynamic = len(scene.static_poses), scene.dynamic_count
+    boxes = Boxes(n_static + n_dynamic)
+    if n_static:
+        set_boxes(boxes, 0, scene.static_poses, scene.static_half_extents)
+    phase.set_static(boxes, n_static)
+    total = 0.0
+    for tick in range(ticks + 1):
+        set_boxes(boxes, n_static, scene.dynamic_poses(dt * tick), scene.dynamic_half_extents)
+        start = time.process_time()
+        phase.find_pairs(boxes, n_static, n_dynamic)
+        total += (time.process_time() - start) if tick else 0.0
+    return 1e3 * total / ticks
+
+
+def study(name):
+    for scene_name, n, ticks, dt in STUDY_SCENES:
+        scene = scenes.make_scene(scene_name, n)
+        if name == 'kd_tree':
+            cells = []
+            for label, ratio in [('rebuild', 1.0), ('refit', float('inf')), ('adaptive', None)]:
+                phase = KdTreePhase() if ratio is None else KdTreePhase(rebuild_ratio=ratio)
+                ms = phase_cpu_ms(scene, phase, ticks, dt)
+                cells.append('%s %.2f ms (%d builds)' % (label, ms, phase.stats['builds']))
+        else:
+            cells = []
+            for label, depth, rule in ([('paper', 0, 'paper'), ('size', 0, 'size')]
+                                       + [(str(d), d, 'size') for d in range(2, 8)]):
+                phase = Octree(Settings(depth, 15), depth_rule=rule)
+                ms = phase_cpu_ms(scene, phase, ticks, dt)
+                cells.append('%s %.2f (depth %d)' % (label, ms, phase.stats['depth']))
+        print('%-10s %6d  %s' % (scene_name, n, ';  '.join(cells)), flush=True)
 
 
 def measure(scene, phase, ticks, seconds, give_up):
@@ -53,7 +98,12 @@ def main():
     parser.add_argument('--seconds', type=float, default=4.0,
                         help='scene time covered by the measured ticks')
     parser.add_argument('--give-up', type=float, default=2.0)
+    parser.add_argument('--study', choices=['kd_tree', 'octree'],
+                        help="CPU ms of one phase's variants instead of the table")
     args = parser.parse_args()
+    if args.study:
+        study(args.study)
+        return
     print('%-11s %7s %-16s %9s %9s %9s %9s %10s  %s' % (
         'scene', 'bodies', 'phase', 'broad_ms', 'narrow_ms', 'total_ms', 'step_cpu', 'candidates',
         'ran'))
