@@ -250,11 +250,12 @@ def test_octree_cooldown_and_stay_paths_are_taken_over_many_ticks():
                 totals[key] += octree.stats[key] - before[key]
             dropped += octree.stats['leaves_dropped'] - before['leaves_dropped']
             created += octree.stats['leaves_created'] - before['leaves_created']
-    # Counted over ticks without a rebuild: each path really ran, and often.
-    assert totals['stayed'] > 5000
-    assert totals['reinserted'] > 1000
-    assert dropped > 50
-    assert created > 50
+    # Counted over ticks without a rebuild: each path really ran, and often (measured with
+    # this seed: 36,138 stays, 10,521 re-insertions, 6,393 leaves created, 5,258 dropped).
+    assert totals['stayed'] > 20000
+    assert totals['reinserted'] > 5000
+    assert dropped > 2000
+    assert created > 2000
 
 
 def octree_tick(octree, boxes, n_static, positions, extents):
