@@ -53,6 +53,9 @@ from collision_node.scenes import uniform, UNIFORM_HALF_EXTENTS
 from collision_node.world import World
 
 STATUS_NAME = 'collision_node: collision_check'
+# Fast DDS reads its XML profile (e.g. a larger shared-memory segment) from this variable; the
+# node's process inherits it from this one.
+FASTDDS_PROFILE_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 DIAGNOSTIC_PERIOD_S = 1.0
 FRAMES = 16            # distinct pre-serialised inputs cycled through (a repeat would be reused)
 FRAME_DT_S = 1.0 / 60.0  # scene time between frames
@@ -523,7 +526,9 @@ def _fmt(value, digits=3):
 
 def markdown(results):
     out = ['# collision_latency', '', '`%s`' % results['command'], '',
-           '%s; %s; Python %s' % (results['machine'], results['rmw'], results['python']), '']
+           '%s; %s; %s=%s; Python %s' % (
+               results['machine'], results['rmw'], FASTDDS_PROFILE_VARIABLE,
+               results['fastdds_profile'], results['python']), '']
     rows = results.get('latency', [])
     if rows:
         out += ['## PoseArray in → collisions out (ms)', '',
@@ -608,6 +613,7 @@ def main(args=None):
     results = {'command': 'collision_latency ' + ' '.join(shlex.quote(a) for a in argv),
                'machine': '%s, %d cores' % (platform.machine(), os.cpu_count()),
                'rmw': os.environ.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp (default)'),
+               'fastdds_profile': os.environ.get(FASTDDS_PROFILE_VARIABLE, 'none'),
                'python': platform.python_version(), 'plan': plan._asdict()}
     sections = options.sections
     if 'latency' in sections:
