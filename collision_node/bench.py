@@ -117,25 +117,30 @@ class SlowRunFilter:
 
     The tick time is scaled as n^p from the last size, p fitted to the last two sizes and
     clamped to [1, 2] (every broad phase scales between linear and brute force's n²), or 2
-    with only one size. Brute force at 100,000 bodies (~3.75e9 comparisons, ~15 s a tick) is
-    skipped; a phase measured near-linear at 1,000 and 10,000 bodies is run.
+    with only one size. p is the larger of the fits to the tick times and to the pairs
+    compared: fixed costs make small sizes look cheap, and the comparisons tell how the work
+    grows. Brute force at 100,000 bodies (~3.75e9 comparisons, ~15 s a tick) is skipped; a
+    phase whose work grew linearly from 1,000 to 10,000 bodies is run.
     """
 
     def __init__(self, max_tick_s):
         self._max_tick_s = max_tick_s
-        self._sizes = {}  # key -> [(bodies, ms per tick), ...] in the order measured
+        self._sizes = {}  # key -> [(bodies, ms per tick, compared or None), ...]
 
     def reason_to_skip(self, key, bodies, max_tick_s=None):
         """Why the run ``key`` at ``bodies`` should be skipped, or None to run it."""
         sizes = [size for size in self._sizes.get(key, []) if size[0] <= bodies]
         if not sizes:
             return None
-        last_bodies, last_ms = sizes[-1]
+        last_bodies, last_ms, last_compared = sizes[-1]
         power = 2.0
         smaller = [size for size in sizes if size[0] < last_bodies]
         if smaller:
-            first_bodies, first_ms = smaller[-1]
-            power = math.log(last_ms / first_ms) / math.log(last_bodies / first_bodies)
+            first_bodies, first_ms, first_compared = smaller[-1]
+            growth = math.log(last_bodies / first_bodies)
+            power = math.log(last_ms / first_ms) / growth
+            if first_compared and last_compared:
+                power = max(power, math.log(last_compared / first_compared) / growth)
             power = min(2.0, max(1.0, power))
         expected_s = 1e-3 * last_ms * (bodies / last_bodies) ** power
         if expected_s <= (max_tick_s or self._max_tick_s):
@@ -143,9 +148,9 @@ class SlowRunFilter:
         return ('skipped: ~%.3g s per tick expected (%.3g ms at %d bodies, scaled as n^%.2g)'
                 % (expected_s, last_ms, last_bodies, power))
 
-    def record(self, key, bodies, ms):
-        """Remember that run ``key`` took ``ms`` per tick at ``bodies``."""
-        self._sizes.setdefault(key, []).append((bodies, ms))
+    def record(self, key, bodies, ms, compared=None):
+        """Remember that run ``key`` took ``ms`` per tick at ``bodies`` (and ``compared``)."""
+        self._sizes.setdefault(key, []).append((bodies, ms, compared))
 
 
 class Bench:
@@ -184,7 +189,7 @@ class Bench:
                             **world_options)
         if 'error' not in row:
             if skip_key:
-                self.slow.record(skip_key, bodies, row['median_ms'])
+                self.slow.record(skip_key, bodies, row['median_ms'], row.get('compared_max'))
             self.progress('%s: %d ticks in %.1f s, median %.3f ms'
                           % (label, row['ticks'], time.perf_counter() - before,
                              row['median_ms']))

@@ -202,6 +202,10 @@ def test_slow_runs_are_skipped_by_extrapolation():
     slow.record('quadratic', 10000, 100.0)
     assert slow.reason_to_skip('quadratic', 20000) is None  # 0.4 s
     assert 'n^2' in slow.reason_to_skip('quadratic', 40000)  # 1.6 s
+    # Fixed costs hide quadratic work in the times; the comparisons reveal it.
+    slow.record('brute', 1000, 10.0, compared=10 ** 6)
+    slow.record('brute', 10000, 100.0, compared=10 ** 8)
+    assert 'n^2' in slow.reason_to_skip('brute', 40000)  # 1.6 s, not 0.4 s
 
 
 def test_a_skipped_row_keeps_its_name_and_says_why():
