@@ -8,6 +8,7 @@ import os
 import random
 import re
 import signal
+import struct
 import subprocess
 import sys
 import time
@@ -366,6 +367,7 @@ INPUT_TIMEOUT_S = 0.5
 # Scheduling noise allowed on top of a diagnostics period (0.1 s) when the ERROR comes.
 TIMEOUT_SLACK_S = 1.0
 PROCESS_TIMEOUT_S = 60.0  # a process start imports rclpy and numpy: seconds on a busy machine
+STAMP = struct.Struct('<i')  # header.stamp.sec, the first field after the CDR header
 
 
 def start_pose_publisher(namespace):
@@ -407,26 +409,30 @@ def test_restarted_node_loads_its_kernels_from_the_cache(context, tmp_path):
     peer = rclpy.create_node('restart_tester', context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(peer)
-    poses = peer.create_publisher(PoseArray, 'dynamic_poses', INPUT)
+    publisher = peer.create_publisher(PoseArray, 'dynamic_poses', INPUT)
     answers = []
     peer.create_subscription(PointCloud2, 'collisions', answers.append, INPUT, raw=True)
     environment = dict(node_environment(DOMAIN_ID), NUMBA_DEBUG_CACHE='1')
-    message = serialize_pose_array(0, 0, 'world', scenes.room(40).dynamic_poses(0.0))
+    poses = scenes.room(40).dynamic_poses(0.0)
 
     def start_and_wait(run):
-        """Start the node, publish until it answers; return its process and output file."""
+        """Start the node, publish until it answers; return its process and output file.
+
+        The inputs of run k are stamped k: an answer of an earlier run still on its way
+        cannot pass for one of this run.
+        """
         output = tmp_path / ('node%d.txt' % run)
         with open(output, 'w') as stream:
             process = subprocess.Popen(
                 node_command('--params-file', str(REPO / 'config' / 'default.yaml')),
                 cwd=REPO, env=environment, stdout=stream, stderr=subprocess.STDOUT)
         started = time.monotonic()
-        answers.clear()
+        message = serialize_pose_array(run, 0, 'world', poses)
         deadline = started + PROCESS_TIMEOUT_S
-        while not answers:
+        while run not in [STAMP.unpack_from(answer, 4)[0] for answer in answers]:
             assert process.poll() is None, output.read_text()
             assert time.monotonic() < deadline, 'no answer: ' + output.read_text()
-            poses.publish(message)
+            publisher.publish(message)
             executor.spin_once(timeout_sec=0.05)
         print('run %d: first answer %.2f s after the node process started'
               % (run, time.monotonic() - started))
