@@ -3,7 +3,16 @@
 Every kernel in the package is decorated with :func:`kernel`, so the flags cannot drift
 between modules. ``fastmath`` stays off everywhere: it lets LLVM assume no NaN/Inf, which
 turns ``np.isnan`` into ``False`` and reassociates the SAT's sums (DESIGN §4, §7).
+
+Cache. numba caches next to the sources when that directory is writable, else in the user's
+cache directory (~/.cache/numba), and NUMBA_CACHE_DIR overrides both. When none of them is
+writable (a read-only install run by a user without a writable home, e.g. a service), numba
+refuses to decorate a ``cache=True`` function at all; the kernels then cache in
+FALLBACK_CACHE_DIR, so the node still starts and a restart still loads instead of compiling.
 """
+import os
+import tempfile
+
 import numba
 
 JIT_OPTIONS = {
@@ -13,8 +22,22 @@ JIT_OPTIONS = {
     'fastmath': False,
     'boundscheck': False,
 }
+# One directory per user: another user's cache directory would not be writable.
+FALLBACK_CACHE_DIR = os.path.join(tempfile.gettempdir(),
+                                  'collision_node-numba-cache-%d' % os.getuid())
 
 
 def kernel(function):
     """Compile ``function`` with the package's JIT options."""
-    return numba.njit(**JIT_OPTIONS)(function)
+    try:
+        return numba.njit(**JIT_OPTIONS)(function)
+    except RuntimeError as error:
+        if 'no locator available' not in str(error):
+            raise
+    # numba picks a function's cache directory when it decorates it: the fallback is set for
+    # this decoration only, so other numba users in the process keep their own choice.
+    previous, numba.config.CACHE_DIR = numba.config.CACHE_DIR, FALLBACK_CACHE_DIR
+    try:
+        return numba.njit(**JIT_OPTIONS)(function)
+    finally:
+        numba.config.CACHE_DIR = previous

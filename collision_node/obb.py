@@ -67,7 +67,7 @@ def set_boxes(boxes, start, poses, half_extents):
 
     Raises ValueError naming the first invalid body (index within ``poses``) and why.
     """
-    poses = np.ascontiguousarray(poses, dtype=np.float64)
+    poses = np.require(poses, np.float64, ['C', 'A', 'W'])
     if poses.ndim != 2 or poses.shape[1] != 7:
         raise ValueError('poses must have shape (N, 7) as x y z qx qy qz qw, got %s'
                          % (poses.shape,))
@@ -77,7 +77,9 @@ def set_boxes(boxes, start, poses, half_extents):
     if half_extents.shape != (len(poses), 3):
         raise ValueError('half extents must have shape (3,) or (%d, 3), got %s'
                          % (len(poses), half_extents.shape))
-    half_extents = np.ascontiguousarray(half_extents)
+    # A broadcast view is read-only (and, for 0 or 1 bodies, already contiguous): numba would
+    # compile a separate signature for it during a tick, so make it a writable array.
+    half_extents = np.require(half_extents, np.float64, ['C', 'A', 'W'])
     if start + len(poses) > boxes.capacity:
         raise ValueError('storage holds %d boxes, %d needed' % (boxes.capacity,
                                                                 start + len(poses)))

@@ -147,3 +147,14 @@ def test_numba_cache_dir_overrides_the_user_cache(read_only_install, tmp_path):
     assert cache_path.startswith(str(chosen))
     assert any(f.startswith('obb.spheres_apart') for f in cache_files(chosen))
     assert not cache_files(home) and not cache_files(install)
+
+
+def test_read_only_install_without_a_writable_home_still_caches(read_only_install, tmp_path):
+    install, _ = read_only_install
+    home = tmp_path / 'read_only_home'
+    home.mkdir()
+    os.chmod(home, 0o555)
+    cache_path, _, sat_cache_path = run_cache_check(install, home)
+    assert sat_cache_path == cache_path and not cache_path.startswith(str(home))
+    assert any(f.startswith('obb.spheres_apart') for f in cache_files(cache_path))
+    assert run_cache_check(install, home)[1] == 1  # loaded, not compiled, the second time
