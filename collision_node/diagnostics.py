@@ -9,7 +9,7 @@ import numpy as np
 
 # diagnostic_msgs/DiagnosticStatus levels (byte values of the message's constants).
 OK, WARN, ERROR = 0, 1, 2
-STAGES = ('parse', 'broad', 'narrow', 'publish', 'total')
+STAGES = ('parse', 'broad', 'narrow', 'output', 'publish', 'total')
 TOTAL = STAGES.index('total')
 # Ticks kept per period for the median and p99; faster ticking reports them over the newest
 # this many ticks (the max is exact over the whole period). 4096 covers 1 kHz for 4 s.
@@ -38,6 +38,7 @@ class Monitor:
         self._world = {key: 0 for key in WORLD_KEYS}
         self._world['broad_phase'] = ''
         self._world['reused_result'] = False
+        self._phase_stats = {}  # the broad phase's own counters (octree leaves, sorts, ...)
 
     def received(self):
         """Count an input message arriving (it sets the input period)."""
@@ -65,6 +66,7 @@ class Monitor:
         for key in WORLD_KEYS:
             self._world[key] = world_stats[key]
         self._world['reused_result'] = world_stats.get('reused', False)
+        self._phase_stats = world_stats.get('broad_phase_stats', self._phase_stats)
 
     def report(self, now_s, input_timeout_s, tick_period_s=0.0):
         """Return (level, message, [(key, value)]) for the period ending now, then reset it.
@@ -83,6 +85,8 @@ class Monitor:
         else:
             median = p99 = np.zeros(len(STAGES))
         values = [(key, _text(value)) for key, value in self._world.items()]
+        values += [('%s.%s' % (self._world['broad_phase'], key), _text(value))
+                   for key, value in sorted(self._phase_stats.items())]
         for stage, name in enumerate(STAGES):
             values += [('%s_ms_last' % name, _ms(self._last[stage])),
                        ('%s_ms_median' % name, _ms(median[stage])),

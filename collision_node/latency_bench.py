@@ -10,8 +10,9 @@ Prints markdown tables; ``--json`` writes every number. Four sections:
   PoseArrays (only the stamp is patched in, before the send time is taken) and receives the
   ``collisions`` cloud as raw bytes. Latency = receipt − send on one monotonic clock. Stage
   times are the node's own /diagnostics (1-s periods; the table gives the median over periods
-  of each period's median, the p99 and max over all). ``publish`` there is the cloud written
-  and published; the node's overhead is parse + publish over the total. Inputs the node had no
+  of each period's median, the p99 and max over all). ``output`` there is the cloud (and
+  markers) written as CDR bytes, ``publish`` handing them to rclpy; the node's overhead is
+  parse + output + publish over the total. Inputs the node had no
   time for are dropped (depth-1 input queue), so at high rates not every input is answered.
 * output: message object vs pre-serialised bytes for the cloud, written and published, here.
 * skips: what a scene does not need, each against the case that needs it, through
@@ -533,20 +534,22 @@ def markdown(results):
     if rows:
         out += ['## PoseArray in → collisions out (ms)', '',
                 "Stage columns: the node's /diagnostics, median over 1-s periods of the "
-                "period's median. overhead = (parse + publish) / total.", '',
+                "period's median. overhead = (parse + output + publish) / total.", '',
                 '| bodies | poses | statics | rate Hz | sent/s | answered | median | p99 | max '
-                '| parse | broad | narrow | publish | total | overhead | phase |',
-                '|' + '---|' * 16]
+                '| parse | broad | narrow | output | publish | total | overhead | phase |',
+                '|' + '---|' * 17]
         for r in rows:
             overhead = None
             if r['total_ms_median']:
-                overhead = '%.0f %%' % (100.0 * (r['parse_ms_median'] + r['publish_ms_median'])
+                overhead = '%.0f %%' % (100.0 * (r['parse_ms_median'] + r['output_ms_median']
+                                                 + r['publish_ms_median'])
                                         / r['total_ms_median'])
             out.append('| ' + ' | '.join(_fmt(v) for v in (
                 r['bodies'], r['poses'], r['statics'], r['rate_hz'], round(r['sent_rate_hz']),
                 '%d/%d' % (r['answered'], r['sent']), r['latency_ms_median'],
                 r['latency_ms_p99'], r['latency_ms_max'], r['parse_ms_median'],
-                r['broad_ms_median'], r['narrow_ms_median'], r['publish_ms_median'],
+                r['broad_ms_median'], r['narrow_ms_median'], r['output_ms_median'],
+                r['publish_ms_median'],
                 r['total_ms_median'], overhead, r['broad_phase'])) + ' |')
         ready = sorted({(r['bodies'], round(r['ready_s'], 2)) for r in rows})
         out += ['', 'Node ready (process start → first answer, warm cache): ' + ', '.join(

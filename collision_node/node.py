@@ -17,8 +17,8 @@ of that publisher came through (earlier ones may predate the subscription).
 
 Stage times in /diagnostics: ``parse`` is the CDR parse, the input checks and the World's
 poses-to-boxes conversion (everything before the broad phase); ``broad`` and ``narrow`` are the
-World's; ``publish`` is the collisions cloud plus the markers when they are built; ``total`` is
-the whole tick. A World answer reused for an unchanged input counts as parse time only.
+World's; ``output`` writes the collisions cloud (and the markers when they are built) as CDR
+bytes; ``publish`` hands those bytes to rclpy; ``total`` is the whole tick. A World answer reused for an unchanged input counts as parse time only.
 
 Markers are built only while ``~/markers`` has a subscriber, at most 30 times a second and
 at most a tenth of the node's time (see MARKER_COST_FACTOR). They are written as CDR bytes by
@@ -176,13 +176,19 @@ class CollisionNode(Node):
             return
         stepped = time.perf_counter()
 
-        self._collisions_publisher.publish(serialize_collisions(
-            result.contacts, message.sec, message.nanosec, config.frame_id))
+        cloud = serialize_collisions(result.contacts, message.sec, message.nanosec,
+                                     config.frame_id)
+        output_ms = 1e3 * (time.perf_counter() - stepped)
+        self._collisions_publisher.publish(cloud)
         now = time.monotonic()
         if now >= self._next_markers_s \
                 and self._markers_publisher.get_subscription_count() > 0:
             markers_start = time.perf_counter()
-            self._publish_markers(message, config, result.contacts)
+            markers = self._marker_writer.serialize(
+                message.sec, message.nanosec, *self._static_scene, message.poses,
+                config.dynamic_half_extents, result.contacts)
+            output_ms += 1e3 * (time.perf_counter() - markers_start)
+            self._markers_publisher.publish(markers)
             cost = time.perf_counter() - markers_start
             self._next_markers_s = now + max(MARKER_PERIOD_S, MARKER_COST_FACTOR * cost)
         done = time.perf_counter()
@@ -193,7 +199,8 @@ class CollisionNode(Node):
         else:
             parse_ms = 1e3 * (checked - start) + stats['prepare_ms']
             broad_ms, narrow_ms = stats['broad_ms'], stats['narrow_ms']
-        self._monitor.tick(now, (parse_ms, broad_ms, narrow_ms, 1e3 * (done - stepped),
+        publish_ms = 1e3 * (done - stepped) - output_ms
+        self._monitor.tick(now, (parse_ms, broad_ms, narrow_ms, output_ms, publish_ms,
                                  1e3 * (done - start)), stats)
 
     @staticmethod
@@ -213,12 +220,6 @@ class CollisionNode(Node):
         self._monitor.rejected(reason)
         self.get_logger().warn('input rejected: %s' % reason,
                                throttle_duration_sec=LOG_THROTTLE_S)
-
-    def _publish_markers(self, message, config, contacts):
-        """DELETEALL, a cube per body (static, free, colliding), an arrow per contact normal."""
-        self._markers_publisher.publish(self._marker_writer.serialize(
-            message.sec, message.nanosec, *self._static_scene, message.poses,
-            config.dynamic_half_extents, contacts))
 
     def _on_set_parameters(self, changes):
         """Apply run-time changes on the next tick; refuse invalid ones with the reason."""

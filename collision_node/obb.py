@@ -27,16 +27,23 @@ EPS = float(np.finfo(np.float64).eps)
 # touching than that, a verdict may go either way (README, "Accuracy").
 TIE_ULPS = 64.0
 
+# Positions and half extents beyond this many metres are rejected: no robot needs them (Earth's
+# radius is 6.4e6 m), float64 keeps only ~0.1 mm there, and bounding them keeps every product
+# in the broad phases and the SAT far from overflow, so a finite input never yields Inf/NaN.
+MAX_COORDINATE = 1e9
+
 # Codes returned by the validating kernel; REASONS turns them into words.
 VALID = 0
 NON_FINITE_POSE = 1
 BAD_QUATERNION = 2
 BAD_HALF_EXTENTS = 3
+OUT_OF_RANGE = 4
 REASONS = {
     NON_FINITE_POSE: 'pose has a NaN or Inf value',
     BAD_QUATERNION: 'quaternion norm is not within %g of 1 (zero or not a rotation)'
                     % QUATERNION_NORM_TOLERANCE,
-    BAD_HALF_EXTENTS: 'half extents must be finite and >= 0',
+    BAD_HALF_EXTENTS: 'half extents must be finite, >= 0 and <= %g m' % MAX_COORDINATE,
+    OUT_OF_RANGE: 'position beyond +-%g m' % MAX_COORDINATE,
 }
 
 
@@ -109,13 +116,16 @@ def _write_boxes(poses, half_extents, start, centers, rotations, extents, aabbs,
         for k in range(7):
             if not math.isfinite(poses[i, k]):
                 return i, NON_FINITE_POSE
+        for k in range(3):
+            if abs(poses[i, k]) > MAX_COORDINATE:
+                return i, OUT_OF_RANGE
         x, y, z, w = poses[i, 3], poses[i, 4], poses[i, 5], poses[i, 6]
         norm = math.sqrt(x * x + y * y + z * z + w * w)
         if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
             return i, BAD_QUATERNION
         for k in range(3):
             e = half_extents[i, k]
-            if not (math.isfinite(e) and e >= 0.0):
+            if not (math.isfinite(e) and 0.0 <= e <= MAX_COORDINATE):
                 return i, BAD_HALF_EXTENTS
         b = start + i
         _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm, rotations[b])

@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node.broadphase import make_broad_phase, NAMES, Settings
+from collision_node.broadphase import check_settings, make_broad_phase, NAMES, Settings
 from collision_node.contacts import assemble_contacts, CONTACT_DTYPE, DYNAMIC, STATIC  # noqa
 from collision_node.obb import Boxes, set_boxes
 from collision_node.sat import collide_pairs, INVALID
@@ -65,12 +65,7 @@ class World:
         if name not in NAMES:
             raise ValueError('unknown broad phase %r; choose one of %s'
                              % (name, ', '.join(NAMES)))
-        if not 0 <= settings.octree_max_depth <= 10:
-            raise ValueError('octree max depth must be 0 (automatic) to 10, got %r'
-                             % (settings.octree_max_depth,))
-        if settings.octree_leaf_cooldown_ticks < 0:
-            raise ValueError('octree leaf cooldown must be >= 0 ticks, got %r'
-                             % (settings.octree_leaf_cooldown_ticks,))
+        check_settings(settings)
         if self._phase is None or name != self._phase_name or settings != self._settings:
             self._phase_name, self._settings = name, settings
             self._phase = make_broad_phase(name, settings)
@@ -126,20 +121,22 @@ class World:
 
         stats = {'broad_phase': self._phase.name, 'dynamic_bodies': n_dynamic,
                  'static_bodies': n_static, 'compared': 0, 'candidate_pairs': 0,
-                 'sat_tests': 0, 'colliding_pairs': 0, 'reused': False}
+                 'sat_tests': 0, 'colliding_pairs': 0, 'reused': False,
+                 'broad_phase_stats': {}}
         if n_dynamic == 0:  # nothing moves: nothing to pair
             contacts = np.zeros(0, CONTACT_DTYPE)
             broad_done = narrow_done = prepared
         else:
             pairs, compared = self._phase.find_pairs(self._boxes, n_static, n_dynamic)
             stats['broad_phase'] = self._phase.name
+            stats['broad_phase_stats'] = dict(self._phase.stats)
             broad_done = time.perf_counter()
             boxes = self._boxes
             status, depth, normal, point, sat_tests = collide_pairs(
                 boxes.centers, boxes.rotations, boxes.half_extents, boxes.radii, pairs,
                 self._sphere_prefilter)
-            if np.any(status == INVALID):  # validated input cannot get here; never guess
-                raise RuntimeError('the SAT met a NaN on validated input')
+            if np.any(status == INVALID):  # bounded, finite input cannot get here; never guess
+                raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
             contacts = assemble_contacts(pairs, status, depth, normal, point, n_static,
                                          n_dynamic, self._static_ids)
             narrow_done = time.perf_counter()

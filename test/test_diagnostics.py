@@ -16,7 +16,8 @@ WORLD_STATS = {'broad_phase': 'sphere', 'dynamic_bodies': 5, 'static_bodies': 2,
 REQUIRED_KEYS = ['broad_phase', 'dynamic_bodies', 'static_bodies', 'candidate_pairs',
                  'sat_tests', 'colliding_pairs', 'compared', 'ticks', 'rate_hz',
                  'dropped_inputs', 'rejected_inputs', 'last_rejection'] + [
-    '%s_ms_%s' % (stage, statistic) for stage in ('parse', 'broad', 'narrow', 'publish', 'total')
+    '%s_ms_%s' % (stage, statistic)
+    for stage in ('parse', 'broad', 'narrow', 'output', 'publish', 'total')
     for statistic in ('last', 'median', 'p99', 'max')]
 
 
@@ -35,7 +36,8 @@ def test_levels_are_the_message_constants():
 def test_report_has_every_key_and_the_world_stats():
     monitor = Monitor(0.0)
     monitor.received()
-    monitor.tick(0.5, [1.0, 2.0, 3.0, 4.0, 10.0], WORLD_STATS)
+    monitor.tick(0.5, [1.0, 2.0, 3.0, 0.5, 3.5, 10.0],
+                 dict(WORLD_STATS, broad_phase_stats={'builds': 1}))
     level, message, values = monitor.report(1.0, input_timeout_s=5.0)
     values = dict(values)
     assert set(REQUIRED_KEYS) <= set(values)
@@ -47,6 +49,8 @@ def test_report_has_every_key_and_the_world_stats():
     assert values['ticks'] == '1' and float(values['rate_hz']) == 1.0
     assert values['reused_result'] == 'false'
     assert float(values['narrow_ms_last']) == 3.0 and float(values['total_ms_max']) == 10.0
+    assert float(values['output_ms_last']) == 0.5 and float(values['publish_ms_last']) == 3.5
+    assert values['sphere.builds'] == '1'  # the broad phase's own counters, named after it
 
 
 def test_stage_statistics_over_the_period():
@@ -72,7 +76,7 @@ def test_more_ticks_than_samples_keeps_the_newest_and_the_true_max():
     monitor = Monitor(0.0, samples=8)
     totals = [100.0] + [float(i) for i in range(1, 20)]  # the slow one is pushed out
     for total in totals:
-        monitor.tick(0.0, [0.0, 0.0, 0.0, 0.0, total], WORLD_STATS)
+        monitor.tick(0.0, [0.0, 0.0, 0.0, 0.0, 0.0, total], WORLD_STATS)
     values = dict(monitor.report(1.0, input_timeout_s=0.0)[2])
     newest = totals[-8:]
     assert float(values['total_ms_median']) == nearest_rank(newest, 0.5)
@@ -109,24 +113,24 @@ def test_tick_slower_than_the_input_period_warns():
     monitor = Monitor(0.0)
     for _ in range(10):  # 10 inputs in 1 s: a 100 ms input period
         monitor.received()
-        monitor.tick(0.9, [0.0, 0.0, 0.0, 0.0, 50.0], WORLD_STATS)
+        monitor.tick(0.9, [0.0, 0.0, 0.0, 0.0, 0.0, 50.0], WORLD_STATS)
     assert monitor.report(1.0, input_timeout_s=5.0)[0] == OK
     for total in (50.0, 150.0):  # 2 inputs in 1 s: a 500 ms input period
         monitor.received()
-        monitor.tick(1.9, [0.0, 0.0, 0.0, 0.0, total], WORLD_STATS)
+        monitor.tick(1.9, [0.0, 0.0, 0.0, 0.0, 0.0, total], WORLD_STATS)
     assert monitor.report(2.0, input_timeout_s=5.0)[0] == OK
     for _ in range(20):
         monitor.received()
-    monitor.tick(2.9, [0.0, 0.0, 0.0, 0.0, 60.0], WORLD_STATS)  # 20 inputs in 1 s: 50 ms
+    monitor.tick(2.9, [0.0, 0.0, 0.0, 0.0, 0.0, 60.0], WORLD_STATS)  # 20 inputs in 1 s: 50 ms
     level, message, _ = monitor.report(3.0, input_timeout_s=5.0)
     assert level == WARN and 'longer than the input period' in message
     monitor.received()
     monitor.received()
     monitor.dropped(18)  # 20 inputs sent in 1 s, 18 of them overwritten before a tick
-    monitor.tick(3.9, [0.0, 0.0, 0.0, 0.0, 60.0], WORLD_STATS)
+    monitor.tick(3.9, [0.0, 0.0, 0.0, 0.0, 0.0, 60.0], WORLD_STATS)
     level, message, _ = monitor.report(4.0, input_timeout_s=5.0)
     assert level == WARN and 'input period 50 ms' in message
-    monitor.tick(4.5, [0.0, 0.0, 0.0, 0.0, 150.0], WORLD_STATS)  # a timer ticking at 10 Hz
+    monitor.tick(4.5, [0.0, 0.0, 0.0, 0.0, 0.0, 150.0], WORLD_STATS)  # a timer ticking at 10 Hz
     level, message, _ = monitor.report(5.0, input_timeout_s=5.0, tick_period_s=0.1)
     assert level == WARN and 'longer than the input period' in message
 

@@ -39,7 +39,7 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
     assert 0 < row['latency_ms_median'] <= row['latency_ms_p99'] <= row['latency_ms_max']
     # The node's own figures came back over /diagnostics.
     assert row['dynamic_bodies'] == '100' and row['static_bodies'] == '0'
-    for stage in ('parse', 'broad', 'narrow', 'publish'):
+    for stage in ('parse', 'broad', 'narrow', 'output', 'publish'):
         assert 0.0 <= row[stage + '_ms_median'] <= row['total_ms_max']
     assert [r['what'].split(':')[0] for r in results['skips']] == [
         'no dynamic bodies', 'identical input', 'static colliders', 'disabled colliders',

@@ -60,7 +60,7 @@ def test_contacts_stamp_frame_and_diagnostics(harness):
                 'sat_tests', 'colliding_pairs', 'compared', 'ticks', 'rate_hz',
                 'dropped_inputs', 'rejected_inputs', 'last_rejection'):
         assert key in found
-    for stage in ('parse', 'broad', 'narrow', 'publish', 'total'):
+    for stage in ('parse', 'broad', 'narrow', 'output', 'publish', 'total'):
         for statistic in ('last', 'median', 'p99', 'max'):
             assert float(found['%s_ms_%s' % (stage, statistic)]) >= 0.0
     assert float(found['total_ms_max']) >= float(found['narrow_ms_max'])
@@ -221,8 +221,13 @@ def test_no_input_is_an_error(harness):
 def test_markers_only_while_subscribed(harness):
     room = harness()
     built = []
-    publish_markers = room.node._publish_markers
-    room.node._publish_markers = lambda *args: built.append(publish_markers(*args))
+    writer = room.node._marker_writer
+    serialize = writer.serialize
+
+    def counting_serialize(*args):
+        built.append(serialize(*args))
+        return built[-1]
+    writer.serialize = counting_serialize
     poses = room_poses()
     room.publish(poses, sec=1)
     room.answer(1)

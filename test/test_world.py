@@ -136,8 +136,9 @@ def test_slightly_off_unit_quaternion_is_normalised():
 @pytest.mark.parametrize('extents, message', [
     ([0.5, 0.5], 'shape'),
     ([[0.5, 0.5, 0.5]] * 3, 'shape'),
-    ([0.5, -0.1, 0.5], 'finite and >= 0'),
-    ([0.5, np.nan, 0.5], 'finite and >= 0'),
+    ([0.5, -0.1, 0.5], 'finite, >= 0'),
+    ([0.5, np.nan, 0.5], 'finite, >= 0'),
+    ([0.5, 2e9, 0.5], r'finite, >= 0 and <= 1e\+09 m'),
 ])
 def test_invalid_half_extents_are_rejected(extents, message):
     with pytest.raises(ValueError, match=message):
