@@ -35,7 +35,7 @@ class Monitor:
         self._rejected_total = 0    # since start
         self._last_rejection = ''   # since start
         self._last_valid_s = start_s
-        self._world = {key: 0 for key in WORLD_KEYS}
+        self._world = dict.fromkeys(WORLD_KEYS, 0)
         self._world['broad_phase'] = ''
         self._world['reused_result'] = False
         self._phase_stats = {}  # the broad phase's own counters (octree leaves, sorts, ...)

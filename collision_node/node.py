@@ -18,7 +18,8 @@ of that publisher came through (earlier ones may predate the subscription).
 Stage times in /diagnostics: ``parse`` is the CDR parse, the input checks and the World's
 poses-to-boxes conversion (everything before the broad phase); ``broad`` and ``narrow`` are the
 World's; ``output`` writes the collisions cloud (and the markers when they are built) as CDR
-bytes; ``publish`` hands those bytes to rclpy; ``total`` is the whole tick. A World answer reused for an unchanged input counts as parse time only.
+bytes; ``publish`` hands those bytes to rclpy; ``total`` is the whole tick. A World answer
+reused for an unchanged input counts as parse time only.
 
 Markers are built only while ``~/markers`` has a subscriber, at most 30 times a second and
 at most a tenth of the node's time (see MARKER_COST_FACTOR). They are written as CDR bytes by

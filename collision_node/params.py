@@ -28,7 +28,7 @@ DOUBLE_ARRAY, STRING_ARRAY = 'double[]', 'string[]'
 class Spec(NamedTuple):
     """One row of the parameter table."""
 
-    type: str
+    value_type: str
     default: object
     description: str
     run_time: bool = False  # may change while the node runs; all others are read-only
@@ -129,7 +129,8 @@ def parse(values):
         value = values.get(name)
         return spec.default if value is None else value
 
-    read = {name: _checked(name, spec.type, get(name, spec)) for name, spec in PARAMETERS.items()}
+    read = {name: _checked(name, spec.value_type, get(name, spec))
+            for name, spec in PARAMETERS.items()}
     for name in WORLD_SETTINGS:
         check_world_setting(name, read[name])
     names = read['static_colliders']
@@ -137,7 +138,8 @@ def parse(values):
     colliders = []
     for name in names:
         pose, extents, enabled = (  # a missing pose or size stays None: _pose() says so
-            _checked_or_none('%s.%s' % (name, key), spec.type, get('%s.%s' % (name, key), spec))
+            _checked_or_none('%s.%s' % (name, key), spec.value_type,
+                             get('%s.%s' % (name, key), spec))
             for key, spec in COLLIDER_PARAMETERS.items())
         colliders.append(Collider(name, _pose('%s.pose' % name, pose),
                                   _half_extents('%s.half_extents' % name, extents, single=True),
@@ -188,7 +190,7 @@ def run_time_change(parameters, name, value):
         return parameters
     if not spec.run_time:
         raise ParameterError(name, 'fixed at start; restart the node to change it')
-    value = _checked(name, spec.type, value)
+    value = _checked(name, spec.value_type, value)
     if name in WORLD_SETTINGS:
         check_world_setting(name, value)
     field = name.replace('.', '_')
@@ -215,16 +217,18 @@ def declare(node):
         # An empty list has no type in rclpy (a [] default reads as a byte array, an empty YAML
         # list arrives NOT_SET), so a parameter whose default is missing or empty is declared by
         # type alone and reads None until given; parse() then applies the table's default.
-        default = spec.default if spec.default not in (None, []) else types[spec.type]
+        default = spec.default if spec.default not in (None, []) else types[spec.value_type]
         try:
             value = node.declare_parameter(name, default, descriptor).value
         except InvalidParameterTypeException as error:
             # rclpy's text repeats the whole value (thousands of numbers for 3 x N extents):
             # keep only the type it found.
             given = GIVEN_TYPE.search(str(error))
-            raise ParameterError(name, 'must be of type %s%s, got %s' % (
-                spec.type, ' (write 1.0, not 1)' if spec.type.startswith(DOUBLE) else '',
-                given.group(1).lower() if given else str(error)[:200])) from None
+            found = given.group(1).lower() if given else str(error)[:200]
+            hint = ' (write 1.0, not 1)' \
+                if spec.value_type.startswith(DOUBLE) and found == 'integer' else ''
+            raise ParameterError(name, 'must be of type %s%s, got %s'
+                                 % (spec.value_type, hint, found)) from None
         return None if value is None else _plain(value)
 
     values = {name: declare_one(name, spec) for name, spec in PARAMETERS.items()}

@@ -13,9 +13,6 @@ import subprocess
 import sys
 import time
 
-from collision_node.messages import cloud_to_contacts
-from collision_node.node import CollisionNode
-from collision_node.world import DYNAMIC, STATIC
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose, PoseArray
 import numpy as np
@@ -26,6 +23,10 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
+
+from collision_node.messages import cloud_to_contacts
+from collision_node.node import CollisionNode
+from collision_node.world import DYNAMIC, STATIC
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 TIMEOUT_S = 20.0

@@ -22,7 +22,7 @@ REQUIRED_KEYS = ['broad_phase', 'dynamic_bodies', 'static_bodies', 'candidate_pa
 
 
 def nearest_rank(values, fraction):
-    """The conservative percentile: the smallest sample at or above the fraction's rank."""
+    """Return the conservative percentile: the smallest sample at or above the fraction's rank."""
     ordered = sorted(values)
     return ordered[math.ceil(fraction * (len(ordered) - 1))]
 

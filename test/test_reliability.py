@@ -13,12 +13,6 @@ import subprocess
 import sys
 import time
 
-from collision_node import scenes
-from collision_node.broadphase import NAMES
-from collision_node.cdr import serialize_pose_array
-from collision_node.messages import cloud_to_contacts
-from collision_node.obb import MAX_COORDINATE
-from collision_node.world import World
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseArray
 import numpy as np
@@ -32,6 +26,13 @@ from ros_helpers import (BAD_YAML, check_room_contacts, COLLIDERS, count_inputs,
                          node_environment, REPO, room_overrides, room_poses, run_soak,
                          values, write_params)
 from sensor_msgs.msg import PointCloud2
+
+from collision_node import scenes
+from collision_node.broadphase import NAMES
+from collision_node.cdr import serialize_pose_array
+from collision_node.messages import cloud_to_contacts
+from collision_node.obb import MAX_COORDINATE
+from collision_node.world import World
 
 DOMAIN_ID = random.Random(os.getpid() + 2).randint(1, 200)
 # Fuzzed buffers go out in bursts this long; the node's input queue is made as deep (its

@@ -28,8 +28,6 @@ import tempfile
 import threading
 import time
 
-from collision_node.cdr import serialize_pose_array
-from collision_node.scenes import make_scene, SCENES
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 import numpy as np
@@ -38,6 +36,9 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import PointCloud2
+
+from collision_node.cdr import serialize_pose_array
+from collision_node.scenes import make_scene, SCENES
 
 STATUS_NAME = 'collision_node: collision_check'
 # The node's input QoS (DESIGN §3): the newest input wins, reliable for large PoseArrays.
