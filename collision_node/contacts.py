@@ -25,27 +25,49 @@ CONTACT_DTYPE = np.dtype([
 INSERTION_SORT_MAX = 32
 
 
-def assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids):
+def assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids,
+                      dynamic_ids=None):
     """Return the COLLIDING rows of the SAT's output as a sorted CONTACT_DTYPE array.
 
     ``pairs`` are box rows (static rows first, then dynamic); ``static_ids`` maps a static
-    row to the collider id reported for it.
+    row to the collider id reported for it, ``dynamic_ids`` (default: the identity) a dynamic
+    row minus ``n_static`` to the body's index in the PoseArray. Two dynamic bodies must come
+    in id order (:func:`orient_pairs`).
     """
+    if dynamic_ids is None:
+        dynamic_ids = np.arange(n_dynamic)
     n_hits = int(np.count_nonzero(status == COLLIDING))
     contacts = np.empty(n_hits, CONTACT_DTYPE)
     if n_hits:
         _assemble(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids,
-                  contacts)
+                  dynamic_ids, contacts)
     return contacts
 
 
 @kernel
-def _assemble(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids, out):
+def orient_pairs(pairs, n_static, dynamic_ids):
+    """Swap the dynamic pairs whose second body has the smaller id, in place.
+
+    The SAT works in the frame of a pair's first box and the contact is reported from body A,
+    the smaller id: so the pair of two given bodies is computed the same way, to the bit,
+    however the rows are ordered in storage.
+    """
+    for k in range(pairs.shape[0]):
+        a = pairs[k, 0]
+        b = pairs[k, 1]
+        if b >= n_static and dynamic_ids[b - n_static] < dynamic_ids[a - n_static]:
+            pairs[k, 0] = b
+            pairs[k, 1] = a
+
+
+@kernel
+def _assemble(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids,
+              dynamic_ids, out):
     # Counting sort on id_a (O(hits + bodies)), then each body's few contacts by (type_b, id_b).
     starts = np.zeros(n_dynamic + 1, np.int64)
     for k in range(pairs.shape[0]):
         if status[k] == COLLIDING:
-            starts[pairs[k, 0] - n_static + 1] += 1
+            starts[dynamic_ids[pairs[k, 0] - n_static] + 1] += 1
     for body in range(n_dynamic):
         starts[body + 1] += starts[body]
     slot = starts[:-1].copy()
@@ -53,12 +75,12 @@ def _assemble(pairs, status, depth, normal, point, n_static, n_dynamic, static_i
     rank_b = np.empty(pairs.shape[0], np.int64)
     for k in range(pairs.shape[0]):
         if status[k] == COLLIDING:
-            body = pairs[k, 0] - n_static
+            body = dynamic_ids[pairs[k, 0] - n_static]
             order[slot[body]] = k
             slot[body] += 1
             b = pairs[k, 1]
             rank_b[k] = (STATIC << 32) | static_ids[b] if b < n_static \
-                else (DYNAMIC << 32) | (b - n_static)
+                else (DYNAMIC << 32) | dynamic_ids[b - n_static]
     for body in range(n_dynamic):
         _sort_by_rank(order, starts[body], starts[body + 1], rank_b)
     for row in range(order.shape[0]):
@@ -71,7 +93,7 @@ def _assemble(pairs, status, depth, normal, point, n_static, n_dynamic, static_i
         out[row].normal_y = normal[k, 1]
         out[row].normal_z = normal[k, 2]
         out[row].depth = max(depth[k], 0.0)
-        out[row].id_a = pairs[k, 0] - n_static
+        out[row].id_a = dynamic_ids[pairs[k, 0] - n_static]
         out[row].type_a = DYNAMIC
         out[row].id_b = rank_b[k] & 0xFFFFFFFF
         out[row].type_b = STATIC if b < n_static else DYNAMIC

