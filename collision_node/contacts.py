@@ -36,11 +36,12 @@ def assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, 
     """
     if dynamic_ids is None:
         dynamic_ids = np.arange(n_dynamic)
-    n_hits = int(np.count_nonzero(status == COLLIDING))
-    contacts = np.empty(n_hits, CONTACT_DTYPE)
-    if n_hits:
-        _assemble(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids,
-                  dynamic_ids, contacts)
+    ends = np.zeros(n_dynamic + 1, np.int64)
+    contacts = np.empty(_count_by_body(pairs, status, n_static, dynamic_ids, ends),
+                        CONTACT_DTYPE)
+    if len(contacts):
+        _assemble(pairs, status, depth, normal, point, n_static, static_ids, dynamic_ids, ends,
+                  contacts)
     return contacts
 
 
@@ -61,55 +62,71 @@ def orient_pairs(pairs, n_static, dynamic_ids):
 
 
 @kernel
-def _assemble(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids,
-              dynamic_ids, out):
-    # Counting sort on id_a (O(hits + bodies)), then each body's few contacts by (type_b, id_b).
-    starts = np.zeros(n_dynamic + 1, np.int64)
+def _count_by_body(pairs, status, n_static, dynamic_ids, ends):
+    """Set ``ends[body + 1]`` to the number of contacts of bodies up to ``body``; return all."""
     for k in range(pairs.shape[0]):
         if status[k] == COLLIDING:
-            starts[dynamic_ids[pairs[k, 0] - n_static] + 1] += 1
-    for body in range(n_dynamic):
-        starts[body + 1] += starts[body]
-    slot = starts[:-1].copy()
-    order = np.empty(starts[-1], np.int64)
-    rank_b = np.empty(pairs.shape[0], np.int64)
-    for k in range(pairs.shape[0]):
-        if status[k] == COLLIDING:
-            body = dynamic_ids[pairs[k, 0] - n_static]
-            order[slot[body]] = k
-            slot[body] += 1
-            b = pairs[k, 1]
-            rank_b[k] = (STATIC << 32) | static_ids[b] if b < n_static \
-                else (DYNAMIC << 32) | dynamic_ids[b - n_static]
-    for body in range(n_dynamic):
-        _sort_by_rank(order, starts[body], starts[body + 1], rank_b)
-    for row in range(order.shape[0]):
-        k = order[row]
-        b = pairs[k, 1]
-        out[row].x = point[k, 0]
-        out[row].y = point[k, 1]
-        out[row].z = point[k, 2]
-        out[row].normal_x = normal[k, 0]
-        out[row].normal_y = normal[k, 1]
-        out[row].normal_z = normal[k, 2]
-        out[row].depth = max(depth[k], 0.0)
-        out[row].id_a = dynamic_ids[pairs[k, 0] - n_static]
-        out[row].type_a = DYNAMIC
-        out[row].id_b = rank_b[k] & 0xFFFFFFFF
-        out[row].type_b = STATIC if b < n_static else DYNAMIC
+            ends[dynamic_ids[pairs[k, 0] - n_static] + 1] += 1
+    for body in range(len(ends) - 1):
+        ends[body + 1] += ends[body]
+    return ends[-1]
 
 
 @kernel
-def _sort_by_rank(indices, start, end, rank):
-    """Sort ``indices[start:end]`` by ``rank[indices]``."""
-    if end - start > INSERTION_SORT_MAX:
-        part = indices[start:end]
-        part[:] = part[np.argsort(rank[part], kind='mergesort')]
-        return
-    for i in range(start + 1, end):
-        current = indices[i]
-        j = i - 1
-        while j >= start and rank[indices[j]] > rank[current]:
-            indices[j + 1] = indices[j]
-            j -= 1
-        indices[j + 1] = current
+def _assemble(pairs, status, depth, normal, point, n_static, static_ids, dynamic_ids, ends,
+              out):
+    # A counting sort on id_a (O(hits + bodies)) that writes each contact straight to its row,
+    # then each body's few rows sorted by (type_b, id_b): no index arrays, and the pairs'
+    # arrays are read in order (a gather by row instead was 2x slower at 100k bodies).
+    for k in range(pairs.shape[0]):
+        if status[k] == COLLIDING:
+            body = dynamic_ids[pairs[k, 0] - n_static]
+            row = ends[body]
+            ends[body] = row + 1
+            b = pairs[k, 1]
+            out[row].x = point[k, 0]
+            out[row].y = point[k, 1]
+            out[row].z = point[k, 2]
+            out[row].normal_x = normal[k, 0]
+            out[row].normal_y = normal[k, 1]
+            out[row].normal_z = normal[k, 2]
+            out[row].depth = max(depth[k], 0.0)
+            out[row].id_a = body
+            out[row].type_a = DYNAMIC
+            out[row].id_b = static_ids[b] if b < n_static else dynamic_ids[b - n_static]
+            out[row].type_b = STATIC if b < n_static else DYNAMIC
+    held = out[:1].copy()  # a row's copy while insertion sort moves the others
+    start = 0
+    for body in range(len(ends) - 1):  # ends[body] is now the end of the body's rows
+        end = ends[body]
+        if end - start > INSERTION_SORT_MAX:
+            _sort_by_b(out, start, end)
+        else:  # inline: a call per body, with its reference counting, cost more than the sort
+            for i in range(start + 1, end):
+                current = _rank_b(out, i)
+                if _rank_b(out, i - 1) <= current:
+                    continue
+                held[0] = out[i]
+                j = i - 1
+                while j >= start and _rank_b(out, j) > current:
+                    out[j + 1] = out[j]
+                    j -= 1
+                out[j + 1] = held[0]
+        start = end
+
+
+@kernel
+def _rank_b(out, row):
+    return (np.int64(out[row].type_b) << 32) | np.int64(out[row].id_b)
+
+
+@kernel
+def _sort_by_b(out, start, end):
+    """Sort rows ``out[start:end]`` by (type_b, id_b), stably."""
+    rank = np.empty(end - start, np.int64)
+    for i in range(start, end):
+        rank[i - start] = _rank_b(out, i)
+    order = np.argsort(rank, kind='mergesort')
+    rows = out[start:end].copy()
+    for i in range(end - start):
+        out[start + i] = rows[order[i]]
