@@ -88,24 +88,35 @@ def touch_tolerance(center_a, center_b, half_extents_a, half_extents_b):
     return TIE_ULPS * EPS * float(scale)
 
 
-def collide_pairs(centers, rotations, half_extents, radii, pairs, sphere_prefilter=False):
+def collide_pairs(centers, rotations, half_extents, radii, pairs, sphere_prefilter=False,
+                  out=None):
     """Run the SAT on each row ``(a, b)`` of ``pairs`` (P, 2).
 
     Returns ``(status, depth, normal, point, sat_tests)``: status (P,) int8 SEPARATED,
     COLLIDING or INVALID; depth (P,), normal (P, 3) and point (P, 3) valid where COLLIDING;
     ``sat_tests`` the number of pairs that reached the SAT (the rest failed the sphere test).
+    The four arrays are the first P rows of ``out`` when given (see :func:`empty_output`).
     """
     pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
     n = len(pairs)
     if n and (pairs.min() < 0 or pairs.max() >= len(centers)):
         raise ValueError('pair indices must lie in [0, %d)' % len(centers))
-    status = np.empty(n, np.int8)
-    depth = np.empty(n)
-    normal = np.empty((n, 3))
-    point = np.empty((n, 3))
+    if out is None or len(out[0]) < n:
+        out = empty_output(n)
+    status, depth, normal, point = (array[:n] for array in out)
     sat_tests = _collide_pairs(centers, rotations, half_extents, radii, pairs,
                                bool(sphere_prefilter), status, depth, normal, point)
     return status, depth, normal, point, sat_tests
+
+
+def empty_output(capacity):
+    """Return (status, depth, normal, point) arrays for up to ``capacity`` pairs.
+
+    A caller that keeps them for the next call saves fresh pages every time: at 100,000
+    bodies the output is ~16 MB, and its page faults cost 4 % of the SAT.
+    """
+    return (np.empty(capacity, np.int8), np.empty(capacity), np.empty((capacity, 3)),
+            np.empty((capacity, 3)))
 
 
 # Speed notes. The per-pair helpers take and return tuples of floats, never arrays: numba

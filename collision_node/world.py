@@ -25,11 +25,14 @@ from collision_node.broadphase import check_settings, make_broad_phase, NAMES, S
 from collision_node.contacts import (  # noqa: F401 (DYNAMIC, STATIC re-exported)
     assemble_contacts, CONTACT_DTYPE, DYNAMIC, orient_pairs, STATIC)
 from collision_node.obb import Boxes, MAX_COORDINATE, set_boxes
-from collision_node.sat import collide_pairs, INVALID
+from collision_node.sat import collide_pairs, empty_output, INVALID
 
 # Z-order curve resolution: 2**10 cells per axis over the bodies' bounding box (2**30 cells,
 # far more than bodies, so each cell holds a few at most).
 Z_ORDER_BITS = 10
+# The SAT's output arrays grow to this many times the pairs of the tick that outgrew them, so
+# that a slowly growing count does not reallocate every tick.
+SAT_OUTPUT_GROWTH = 1.5
 
 
 class Result(NamedTuple):
@@ -49,6 +52,7 @@ class World:
         self._static_ids = np.zeros(0, np.int64)
         self._dynamic_ids = np.zeros(0, np.int64)  # body in each dynamic row (spatial order)
         self._dynamic_rows = np.zeros(0, np.int64)  # its inverse: row of each body - n_static
+        self._sat_output = empty_output(0)  # reused from tick to tick, grown as needed
         self._settings = Settings(octree_max_depth, octree_leaf_cooldown_ticks)
         self._phase_name = broad_phase
         self._phase = None
@@ -153,9 +157,11 @@ class World:
             broad_done = time.perf_counter()
             orient_pairs(pairs, n_static, self._dynamic_ids)
             boxes = self._boxes
+            if len(self._sat_output[0]) < len(pairs):
+                self._sat_output = empty_output(int(SAT_OUTPUT_GROWTH * len(pairs)))
             status, depth, normal, point, sat_tests = collide_pairs(
                 boxes.centers, boxes.rotations, boxes.half_extents, boxes.radii, pairs,
-                self._sphere_prefilter)
+                self._sphere_prefilter, self._sat_output)
             if np.any(status == INVALID):  # bounded, finite input cannot get here; never guess
                 raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
             contacts = assemble_contacts(pairs, status, depth, normal, point, n_static,
