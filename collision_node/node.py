@@ -38,7 +38,6 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray
-import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -49,12 +48,12 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
-from collision_node import diagnostics, params, scenes
+from collision_node import diagnostics, params
 from collision_node.broadphase import NAMES
 from collision_node.cdr import CdrError, parse_pose_array
 from collision_node.markers import MarkerWriter
 from collision_node.messages import serialize_collisions
-from collision_node.world import World
+from collision_node.world import warm_up, World
 
 # Newest input wins (DESIGN §3); reliable, because Fast DDS delivers nothing best-effort once a
 # PoseArray passes ~512 KB. Overridable through the qos_overrides.* parameters.
@@ -72,7 +71,6 @@ MARKER_PERIOD_S = 1.0 / 30.0
 MARKER_COST_FACTOR = 10.0
 # Sequence number 0 means the rmw does not report publication sequence numbers.
 SEQUENCE_UNSUPPORTED = 0
-WARM_UP_BODIES = 64  # half static: enough for every broad phase to run its full code path
 LOG_THROTTLE_S = 5.0
 
 
@@ -256,27 +254,6 @@ class CollisionNode(Node):
             hardware_id='none', values=[KeyValue(key=key, value=value) for key, value in values])
         self._diagnostics_publisher.publish(DiagnosticArray(
             header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
-
-
-def warm_up():
-    """Run every broad phase and the SAT on a small scene, so that no tick compiles."""
-    scene = scenes.uniform(WARM_UP_BODIES, seed=1)
-    for name in NAMES:
-        for statics in (True, False):
-            world = World(broad_phase=name)
-            if statics:
-                world.set_static(scene.static_poses, scene.static_half_extents)
-            for sphere_prefilter in (True, False):
-                world.sphere_prefilter = sphere_prefilter
-                # Bodies move between steps so that update paths (bodies leaving their cell or
-                # leaf) run too; one size per body, then one size for all.
-                world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents)
-                world.step(scene.dynamic_poses(0.5), scene.dynamic_half_extents)
-                world.step(scene.dynamic_poses(1.0), scene.dynamic_half_extents[0])
-                # One size for one body or none: numpy then hands the kernels a read-only
-                # view of the size, a type of its own for numba.
-                world.step(scene.dynamic_poses(1.5)[:1], scene.dynamic_half_extents[0])
-                world.step(np.zeros((0, 7)), scene.dynamic_half_extents[0])
 
 
 def main(args=None):

@@ -26,6 +26,7 @@ from collision_node.contacts import (  # noqa: F401 (DYNAMIC, STATIC re-exported
     assemble_contacts, CONTACT_DTYPE, DYNAMIC, orient_pairs, STATIC)
 from collision_node.obb import Boxes, MAX_COORDINATE, set_boxes
 from collision_node.sat import collide_pairs, empty_output, INVALID
+from collision_node.scenes import uniform
 
 # Z-order curve resolution: 2**10 cells per axis over the bodies' bounding box (2**30 cells,
 # far more than bodies, so each cell holds a few at most).
@@ -204,3 +205,29 @@ def _inverse(permutation):
     inverse = np.empty_like(permutation)
     inverse[permutation] = np.arange(len(permutation))
     return inverse
+
+
+WARM_UP_BODIES = 64  # half static: enough for every broad phase to run its full code path
+
+
+def warm_up():
+    """Run every broad phase and the SAT on a small scene, so that no later tick compiles.
+
+    numba compiles a kernel (or loads it from its cache) on its first call with each type
+    signature; the node calls this before it subscribes, the benchmarks before they time.
+    """
+    scene = uniform(WARM_UP_BODIES, seed=1)
+    for name in NAMES:
+        for statics in (True, False):
+            world = World(broad_phase=name)
+            if statics:
+                world.set_static(scene.static_poses, scene.static_half_extents)
+            for sphere_prefilter in (True, False):
+                world.sphere_prefilter = sphere_prefilter
+                # Bodies move between steps so that update paths (bodies leaving their cell or
+                # leaf) run too; one size per body, then one size for all, one body, none.
+                world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents)
+                world.step(scene.dynamic_poses(0.5), scene.dynamic_half_extents)
+                world.step(scene.dynamic_poses(1.0), scene.dynamic_half_extents[0])
+                world.step(scene.dynamic_poses(1.5)[:1], scene.dynamic_half_extents[0])
+                world.step(np.zeros((0, 7)), scene.dynamic_half_extents[0])

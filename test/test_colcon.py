@@ -24,7 +24,7 @@ from sensor_msgs.msg import PointCloud2
 
 from collision_node.cdr import serialize_pose_array
 from collision_node.messages import cloud_to_contacts
-from collision_node.node import warm_up
+from collision_node.world import warm_up
 
 PACKAGE = 'collision_node'
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
