@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
-from ros_helpers import (check_room_contacts, count_ticks_and_drops, EXPECTED, HALF, Harness,
-                         make_context, POSITIONS, room_overrides, room_poses, values)
+from ros_helpers import (check_room_contacts, count_ticks_and_drops, EXPECTED, HALF, POSITIONS,
+                         room_poses, values)
 from visualization_msgs.msg import Marker
 
 from collision_node import scenes
@@ -22,25 +22,6 @@ from collision_node.messages import cloud_to_contacts
 from collision_node.world import DYNAMIC, World
 
 DOMAIN_ID = random.Random(os.getpid() + 1).randint(1, 200)
-
-
-@pytest.fixture(scope='module')
-def context():
-    context = make_context(DOMAIN_ID)
-    yield context
-    context.try_shutdown()
-
-
-@pytest.fixture
-def harness(context):
-    made = []
-
-    def make(**overrides):
-        made.append(Harness(context, **room_overrides(**overrides)))
-        return made[-1]
-    yield make
-    for harness in made:
-        harness.close()
 
 
 def test_contacts_stamp_frame_and_diagnostics(harness):

@@ -22,9 +22,8 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from ros_helpers import (BAD_YAML, check_room_contacts, COLLIDERS, count_inputs, EXPECTED,
-                         GOOD_YAML, HALF, Harness, INPUT, make_context, node_command,
-                         node_environment, REPO, room_overrides, room_poses, run_soak,
-                         values, write_params)
+                         GOOD_YAML, HALF, INPUT, node_command, node_environment, REPO, room_poses,
+                         run_soak, values, write_params)
 from sensor_msgs.msg import PointCloud2
 
 from collision_node import scenes
@@ -41,25 +40,6 @@ FUZZ_BURST = 200
 FUZZ_SENTINEL_SEC = 2_000_000_000  # stamps of the valid message closing each burst
 # Largest finite float64 is 1.8e308: poses this far out would overflow differences and squares.
 EXTREME = 1.7e308
-
-
-@pytest.fixture(scope='module')
-def context():
-    context = make_context(DOMAIN_ID)
-    yield context
-    context.try_shutdown()
-
-
-@pytest.fixture
-def harness(context):
-    made = []
-
-    def make(input_depth=None, **overrides):
-        made.append(Harness(context, input_depth, **room_overrides(**overrides)))
-        return made[-1]
-    yield make
-    for harness in made:
-        harness.close()
 
 
 def valid_buffers(rng):
