@@ -10,7 +10,6 @@ the children are stopped with SIGINT, then SIGTERM and SIGKILL if they hang.
 """
 import argparse
 import os
-import signal
 import subprocess
 import sys
 
@@ -24,6 +23,7 @@ from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
 from collision_node.scenes import ROOM_DYNAMIC_COUNT
+from collision_node.tools.processes import stop_process
 
 PACKAGE = 'collision_node'
 CONFIG = os.path.join('config', 'default.yaml')
@@ -121,14 +121,8 @@ def start_children(config, bodies, rate):
 def stop_children(children):
     """Stop the children in reverse start order: SIGINT, then SIGTERM, then SIGKILL."""
     for name, process in reversed(list(children.items())):
-        for stop in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
-            if process.poll() is not None:
-                break
-            process.send_signal(stop)
-            try:
-                process.wait(STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                print('%s did not stop on %s' % (name, signal.Signals(stop).name), flush=True)
+        stop_process(process, STOP_TIMEOUT_S, lambda signal_name, name=name: print(
+            '%s did not stop on %s' % (name, signal_name), flush=True))
         print('stopped %s (pid %d)' % (name, process.pid), flush=True)
 
 

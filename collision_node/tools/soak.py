@@ -20,7 +20,6 @@ arrays growing to their size, Python's allocator settling) adds up to less than
 import argparse
 import json
 import os
-import signal
 import struct
 import subprocess
 import sys
@@ -39,6 +38,7 @@ from sensor_msgs.msg import PointCloud2
 
 from collision_node.cdr import serialize_pose_array
 from collision_node.scenes import make_scene, SCENES
+from collision_node.tools.processes import stop_process
 
 STATUS_NAME = 'collision_node: collision_check'
 # The node's input QoS (DESIGN §3): the newest input wins, reliable for large PoseArrays.
@@ -313,15 +313,7 @@ def start_node(params_path):
 
 def stop_node(process):
     """Stop the node: SIGINT, then SIGTERM and SIGKILL if it hangs; return its exit code."""
-    for stop in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
-        if process.poll() is not None:
-            break
-        process.send_signal(stop)
-        try:
-            process.wait(STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            pass
-    return process.wait()
+    return stop_process(process, STOP_TIMEOUT_S)
 
 
 def run(options, args):
