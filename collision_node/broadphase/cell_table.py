@@ -44,7 +44,9 @@ class CellTable(NamedTuple):
     is_big: np.ndarray      # (N,) bool: box first_row + i spans too many cells, not entered
     big_rows: np.ndarray    # (N,) int64: rows of the big boxes, the first sizes[2] are valid
     bucket_end: np.ndarray  # (B,) int64: bucket b holds entries [bucket_end[b-1], bucket_end[b])
-    entry_slot: np.ndarray  # (E,) int32: slot of each entry's box
+    # Unsigned, so that numba indexes the slot's arrays without its negative-index fix-up
+    # (measured: the grid's pair loop 8 % faster than with int32 slots).
+    entry_slot: np.ndarray  # (E,) uint32: slot of each entry's box
     entry_key: np.ndarray   # (E,) int64: cell key of each entry
     entry_first: np.ndarray  # (E,) uint8: first_cell_flags of the entry's cell in its range
     sizes: np.ndarray       # (4,) int64: entries, buckets (a power of two), big boxes, shift
@@ -55,7 +57,7 @@ def empty_table(boxes=0, entries=0, buckets=2 << LOCAL_BITS):
     return CellTable(np.zeros(boxes, np.int64), np.zeros((boxes, 2, 3)),
                      np.zeros((boxes, 2, 3), np.int64), np.zeros(boxes, np.bool_),
                      np.zeros(boxes, np.int64), np.zeros(buckets, np.int64),
-                     np.zeros(entries, np.int32), np.zeros(entries, np.int64),
+                     np.zeros(entries, np.uint32), np.zeros(entries, np.int64),
                      np.zeros(entries, np.uint8), np.zeros(4, np.int64))
 
 
