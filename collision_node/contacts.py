@@ -76,8 +76,9 @@ def _count_by_body(pairs, status, n_static, dynamic_ids, ends):
 def _assemble(pairs, status, depth, normal, point, n_static, static_ids, dynamic_ids, ends,
               out):
     # A counting sort on id_a (O(hits + bodies)) that writes each contact straight to its row,
-    # then each body's few rows sorted by (type_b, id_b): no index arrays, and the pairs'
-    # arrays are read in order (a gather by row instead was 2x slower at 100k bodies).
+    # then each body's few rows sorted by (type_b, id_b): no index arrays, and the SAT's
+    # arrays are read in order (measured 1.2x faster than sorting indices and then gathering
+    # the rows, at 10k and 100k bodies).
     for k in range(pairs.shape[0]):
         if status[k] == COLLIDING:
             body = dynamic_ids[pairs[k, 0] - n_static]

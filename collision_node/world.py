@@ -12,9 +12,9 @@ reported as ``static_ids[i]``, dynamic row ``n_static + i`` body ``dynamic_ids[i
 boxes sorted along a Z-order curve (static ones when set, dynamic ones when their number
 last changed). Neighbours in space are then neighbours in memory, and the narrow phase,
 which reads both boxes of every candidate pair, ran 1.4x faster at 100,000 bodies (the
-boxes' arrays outgrow the L2 cache there). Contacts are reported by input index as before, and each
-pair is still computed in the frame of its smaller id (contacts.orient_pairs), so the order
-changes no bit of the result.
+boxes' arrays outgrow the L2 cache there). Contacts are reported by input index as before,
+and each pair is still computed in the frame of its smaller id (contacts.orient_pairs), so
+the order changes no bit of the result.
 """
 import time
 from typing import NamedTuple
