@@ -115,11 +115,6 @@ class Parameters(NamedTuple):
         return poses, extents, np.array(enabled, dtype=np.int64)
 
 
-def collider_parameter_names(name):
-    """Names of the parameters of the collider called ``name``."""
-    return ['%s.%s' % (name, key) for key in COLLIDER_PARAMETERS]
-
-
 def parse(values):
     """Validate parameter values (a mapping name -> value; missing or None: default).
 

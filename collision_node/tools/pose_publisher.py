@@ -30,7 +30,6 @@ TOPIC = 'dynamic_poses'
 # Scenes other than the room are sized by their total body count (uniform ones keep half of
 # them static); a thousand is the seed papers' scale.
 DEFAULT_BODIES = 1000
-SUBSCRIBER_POLL_S = 0.05
 # After the last of --count messages: time for a reliable subscriber to acknowledge it
 # before the process, and with it the DDS writer, goes away.
 ACK_TIMEOUT_S = 2.0
