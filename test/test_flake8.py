@@ -44,6 +44,9 @@ def package_config(path):
         if key == 'extend-ignore':  # both lists apply
             value = ','.join(filter(None, [config['flake8'].get(key), value]))
         config['flake8'][key] = value
+    # One process: flake8's worker pool forks pytest, and a fork taken after another test
+    # started rclpy's DDS threads can deadlock on a lock one of those threads held.
+    config['flake8']['jobs'] = '1'
     with open(path, 'w') as file:
         config.write(file)
     return path
