@@ -131,22 +131,29 @@ def serialize_point_cloud(sec, nanosec, frame_id, points, is_dense=True):
     point_step. Raises ValueError for other arrays.
     """
     points = np.asarray(points)
-    fields = _point_fields(points.dtype)
     if points.ndim != 1:
         raise ValueError('points must be a 1-D structured array, got shape %s'
                          % (points.shape,))
+    head, tail = point_cloud_parts(sec, nanosec, frame_id, points.dtype, len(points), is_dense)
+    return b''.join((head, _bytes_of(points), tail))
+
+
+def point_cloud_parts(sec, nanosec, frame_id, dtype, width, is_dense=True):
+    """Return the CDR bytes before and after the ``data`` of a cloud like serialize_point_cloud's.
+
+    For writers that put the ``width`` points of ``dtype`` between them themselves.
+    """
+    fields = _point_fields(np.dtype(dtype))
     writer = _Writer()
     writer.header(sec, nanosec, frame_id)
     writer.uint32(1)  # height
-    writer.uint32(len(points))  # width
+    writer.uint32(width)
     writer.append(fields)  # 4-aligned at both ends, like the uint32 before it
     writer.uint8(0)  # is_bigendian
-    writer.uint32(points.dtype.itemsize)  # point_step
-    writer.uint32(points.dtype.itemsize * len(points))  # row_step
-    writer.uint32(points.dtype.itemsize * len(points))  # length of data
-    writer.append(_bytes_of(points))
-    writer.uint8(bool(is_dense))
-    return writer.tobytes()
+    writer.uint32(dtype.itemsize)  # point_step
+    writer.uint32(dtype.itemsize * width)  # row_step
+    writer.uint32(dtype.itemsize * width)  # length of data
+    return writer.tobytes(), struct.pack('<B', bool(is_dense))
 
 
 @functools.lru_cache(maxsize=8)  # a node publishes one point type: build its fields once

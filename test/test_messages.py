@@ -7,8 +7,9 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
-from collision_node.messages import (CLOUD_DTYPE, cloud_to_contacts, contacts_to_cloud,
-                                     contacts_to_points, serialize_collisions)
+from collision_node.messages import (CLOUD_DTYPE, cloud_to_contacts, CloudWriter,
+                                     contacts_to_cloud, contacts_to_points,
+                                     serialize_collisions)
 from collision_node.world import CONTACT_DTYPE
 
 FLOAT_NAMES = ['x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth']
@@ -99,6 +100,21 @@ def test_serialize_collisions_is_the_cloud_rclpy_serialises(count):
         ours_array, reference_array = (np.frombuffer(b, np.uint8) for b in (ours, reference))
         differing = np.flatnonzero(ours_array != reference_array)
         assert np.all(ours_array[differing] == 0)  # rclpy leaves its padding uninitialised
+
+
+def test_cloud_writer_reused_for_other_sizes_and_layouts():
+    # One writer keeps its buffer: a smaller cloud after a larger one must not carry bytes of
+    # it; cloud-typed and strided contacts take the numpy path, World contacts the kernel.
+    rng = np.random.default_rng(6)
+    writer = CloudWriter()
+    for contacts in (random_contacts(rng, 300), random_contacts(rng, 5),
+                     contacts_to_points(random_contacts(rng, 40)), random_contacts(rng, 60)[::3],
+                     random_contacts(rng, 0)):
+        reference = serialize_message(contacts_to_cloud(contacts, stamped_header()))
+        ours = writer.serialize(contacts, 1234, 5678, 'world')
+        assert deserialize_message(ours, PointCloud2) == deserialize_message(reference,
+                                                                             PointCloud2)
+        assert ours[-len(contacts) * 44 - 1:-1] == naive_cloud_data(contacts)
 
 
 def test_contacts_to_points_keeps_the_order_of_the_cloud():
