@@ -89,7 +89,8 @@ class CollisionNode(Node):
         self._config = params.declare(self)
         config = self._config
         self._world = World(config.broad_phase, config.sphere_prefilter,
-                            config.octree_max_depth, config.octree_leaf_cooldown_ticks)
+                            config.octree_max_depth, config.octree_leaf_cooldown_ticks,
+                            config.threads)
         self._static_scene = config.static_scene()  # poses, half extents, ids
         self._world.set_static(*self._static_scene)
         # Parameter changes may come from another thread (Node.set_parameters); ticks run on
@@ -124,10 +125,11 @@ class CollisionNode(Node):
             PoseArray, 'dynamic_poses', self._on_input, copy.copy(INPUT_QOS), raw=True,
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.get_logger().info(
-            '%d static colliders (%d enabled), broad phase %s, %s' % (
+            '%d static colliders (%d enabled), broad phase %s, %s, %d thread%s' % (
                 len(config.colliders), self._world.static_count, config.broad_phase,
                 'tick on every input' if not config.tick_rate_hz
-                else 'tick at %g Hz' % config.tick_rate_hz))
+                else 'tick at %g Hz' % config.tick_rate_hz,
+                config.threads, '' if config.threads == 1 else 's'))
 
     def _on_input(self, buffer, info):
         self._monitor.received()
@@ -207,6 +209,10 @@ class CollisionNode(Node):
         publish_ms = 1e3 * (done - stepped) - output_ms
         self._monitor.tick(now, (parse_ms, broad_ms, narrow_ms, output_ms, publish_ms,
                                  1e3 * (done - start)), stats)
+
+    def destroy_node(self):
+        self._world.close()
+        super().destroy_node()
 
     @staticmethod
     def _check_input(message, config):

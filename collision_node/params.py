@@ -51,6 +51,8 @@ PARAMETERS = {
     'input_timeout_s': Spec(DOUBLE, 1.0, 'no valid input for this long: ERROR diagnostic; '
                                          '0 disables'),
     'max_bodies': Spec(INTEGER, 100000, 'inputs with more poses are rejected'),
+    'threads': Spec(INTEGER, 1, "threads for the grid's pair search and the SAT: 1 keeps every "
+                                "tick on the executor's thread; 2+ pay from ~10,000 bodies"),
     'diagnostic_updater.period': Spec(DOUBLE, 1.0, 's between /diagnostics messages'),
 }
 COLLIDER_PARAMETERS = {  # <name>.<key>; pose and half_extents have no default: they must be given
@@ -63,6 +65,7 @@ COLLIDER_PARAMETERS = {  # <name>.<key>; pose and half_extents have no default: 
 COLLIDER_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
 RESERVED_NAMES = frozenset(name.split('.')[0] for name in PARAMETERS) | {
     'qos_overrides', 'use_sim_time', 'start_type_description_service'}
+MAX_THREADS = 64  # far more than a collision check can use; a larger value is a typo
 # Above this a timer mostly wakes the executor to find no new input; a faster pose source is
 # better served by tick_rate_hz 0 (a tick on every input).
 MAX_TICK_RATE_HZ = 1000.0
@@ -105,6 +108,7 @@ class Parameters(NamedTuple):
     tick_rate_hz: float
     input_timeout_s: float
     max_bodies: int
+    threads: int
     diagnostic_period_s: float
 
     def static_scene(self):
@@ -151,6 +155,7 @@ def parse(values):
         tick_rate_hz=_in_range('tick_rate_hz', read['tick_rate_hz'], 0.0, MAX_TICK_RATE_HZ),
         input_timeout_s=_in_range('input_timeout_s', read['input_timeout_s'], 0.0, math.inf),
         max_bodies=_in_range('max_bodies', read['max_bodies'], 1, 2**32 - 1),
+        threads=_in_range('threads', read['threads'], 1, MAX_THREADS),
         diagnostic_period_s=_positive('diagnostic_updater.period',
                                       read['diagnostic_updater.period']))
 

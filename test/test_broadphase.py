@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from collision_node import World
-from collision_node.broadphase import check_settings, make_broad_phase, NAMES, Settings
+from collision_node import world as world_module
+from collision_node.broadphase import check_settings, grid, make_broad_phase, NAMES, Settings
 from collision_node.broadphase.auto import Auto, SWITCH_AFTER_TICKS
 from collision_node.broadphase.kd_tree import KdTreePhase
 from collision_node.broadphase.octree import Octree, paper_depth, size_depth
@@ -220,6 +221,40 @@ def test_many_ticks_of_moving_coming_and_going_bodies(name):
     for tick, results in run_worlds(scene, ['brute_force', name], ticks):
         assert np.array_equal(contact_ids(results[name]), contact_ids(results['brute_force'])), \
             (name, tick)
+
+
+@pytest.fixture
+def small_chunks(monkeypatch):
+    """Chunks of a few items, so that the test scenes' loops are spread over threads."""
+    monkeypatch.setattr(grid, 'MIN_BUCKETS_PER_CHUNK', 7)
+    monkeypatch.setattr(world_module, 'MIN_PAIRS_PER_CHUNK', 5)
+
+
+@pytest.mark.parametrize('scene_name', sorted(SCENES))
+def test_threads_give_the_same_contacts_to_the_bit(small_chunks, scene_name):
+    scene = SCENES[scene_name]()
+    worlds = {}
+    for threads in (1, 2, 3):
+        worlds[threads] = World(broad_phase='grid', threads=threads)
+        worlds[threads].set_static(scene.static_poses, scene.static_half_extents)
+    for tick in (range(0, 60, 12) if scene_name == 'flying_out' else range(3)):
+        dynamic = scene.dynamic(tick)  # some scenes draw new bodies at each call
+        results = {threads: world.step(*dynamic) for threads, world in worlds.items()}
+        expected = results[1].contacts.tobytes()
+        for threads in (2, 3):
+            assert results[threads].contacts.tobytes() == expected, (scene_name, tick, threads)
+            assert results[threads].stats['compared'] == results[1].stats['compared']
+    for world in worlds.values():
+        world.close()
+
+
+def test_threads_over_many_ticks_of_moving_coming_and_going_bodies(small_chunks):
+    scene = ChaosScene(seed=7)
+    for tick, results in run_worlds(scene, ['brute_force', 'grid', 'auto'], range(200),
+                                    settings={'threads': 2}):
+        for name in ('grid', 'auto'):
+            assert np.array_equal(contact_ids(results[name]),
+                                  contact_ids(results['brute_force'])), (name, tick)
 
 
 def test_octree_cooldown_and_stay_paths_are_taken_over_many_ticks():

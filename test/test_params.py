@@ -52,6 +52,9 @@ BAD = {
     'huge tick rate': ({'tick_rate_hz': 1e6}, 'tick_rate_hz', 'in [0'),
     'negative timeout': ({'input_timeout_s': -0.5}, 'input_timeout_s', 'in [0'),
     'no bodies': ({'max_bodies': 0}, 'max_bodies', 'in [1'),
+    'no threads': ({'threads': 0}, 'threads', 'in [1'),
+    'thousands of threads': ({'threads': 5000}, 'threads', 'in [1'),
+    'fractional threads': ({'threads': 1.5}, 'threads', 'integer'),
     'zero period': ({'diagnostic_updater.period': 0.0}, 'diagnostic_updater.period',
                     'positive'),
     'empty frame': ({'frame_id': ''}, 'frame_id', 'frame'),
@@ -66,8 +69,8 @@ def test_defaults_are_the_design_table():
     assert (parsed.octree_max_depth, parsed.octree_leaf_cooldown_ticks) == (0, 15)
     np.testing.assert_array_equal(parsed.dynamic_half_extents, [0.5, 0.5, 0.5])
     assert parsed.colliders == ()
-    assert (parsed.tick_rate_hz, parsed.input_timeout_s, parsed.max_bodies,
-            parsed.diagnostic_period_s) == (0.0, 1.0, 100000, 1.0)
+    assert (parsed.tick_rate_hz, parsed.input_timeout_s, parsed.max_bodies, parsed.threads,
+            parsed.diagnostic_period_s) == (0.0, 1.0, 100000, 1, 1.0)
     poses, extents, ids = parsed.static_scene()
     assert poses.shape == (0, 7) and extents.shape == (0, 3) and ids.shape == (0,)
 

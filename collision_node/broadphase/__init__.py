@@ -4,7 +4,9 @@ Every broad phase is a class with the same small API, so the World does not know
 holds:
 
 ``BroadPhase(settings)``
-    ``settings`` is a :class:`Settings`; a phase reads only the fields it needs.
+    ``settings`` is a :class:`Settings`; a phase reads only the fields it needs. The grid (and
+    ``auto``, for its grid) also takes a :class:`~collision_node.workers.Workers` to spread its
+    pair search over threads; the other phases run on the caller's thread.
 ``set_static(boxes, n_static)``
     Called once per static scene. Static boxes are rows ``[0, n_static)`` of ``boxes``
     (an :class:`collision_node.obb.Boxes`); a phase builds what depends on them here.
@@ -64,15 +66,18 @@ BROAD_PHASES = {phase.name: phase for phase in (BruteForce, Sphere, Octree, KdTr
 NAMES = tuple(BROAD_PHASES) + ('auto',)
 
 
-def make_broad_phase(name, settings=Settings()):
+def make_broad_phase(name, settings=Settings(), workers=None):
     """Return a new broad phase called ``name`` (one of :data:`NAMES`).
 
+    ``workers`` (default: the caller's thread only) is handed to the phases that use threads.
     Raises ValueError for an unknown name or invalid settings (:func:`check_settings`).
     """
     check_settings(settings)
     if name == 'auto':
         from collision_node.broadphase.auto import Auto
-        return Auto(settings)
+        return Auto(settings, workers)
     if name not in BROAD_PHASES:
         raise ValueError('unknown broad phase %r; choose one of %s' % (name, ', '.join(NAMES)))
+    if name == Grid.name:
+        return Grid(settings, workers)
     return BROAD_PHASES[name](settings)

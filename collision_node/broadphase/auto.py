@@ -18,6 +18,7 @@ beyond a threshold by ``URGENT_MARGIN`` (100,000 bodies arriving while brute for
 such tick takes seconds), switch at once.
 """
 from collision_node._jit import kernel
+from collision_node.broadphase import make_broad_phase
 from collision_node.broadphase.brute_force import BruteForce
 from collision_node.broadphase.grid import Grid
 from collision_node.broadphase.sweep_and_prune import SweepAndPrune
@@ -36,8 +37,9 @@ SIMPLER = {BruteForce.name: 0, SweepAndPrune.name: 1, Grid.name: 2}  # threshold
 class Auto:
     """Chooses the broad phase; ``name`` tells which one ran last, ``stats`` its figures."""
 
-    def __init__(self, settings):
+    def __init__(self, settings, workers=None):
         self._settings = settings
+        self._workers = workers
         self._phases = {}
         self._static = None  # (boxes, n_static) of the last set_static, for new phases
         self._current = None
@@ -92,7 +94,7 @@ class Auto:
 
     def _phase(self, name):
         if name not in self._phases:
-            phase = PHASES[name](self._settings)
+            phase = make_broad_phase(name, self._settings, self._workers)
             if self._static is not None:
                 phase.set_static(*self._static)
             self._phases[name] = phase

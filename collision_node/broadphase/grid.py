@@ -38,6 +38,7 @@ from collision_node.broadphase.cell_table import (
 from collision_node.broadphase.cells import (
     ALL_FIRST, make_lattice, mean_side_and_center, pairs_with_all_dynamic, pairs_with_all_static)
 from collision_node.broadphase.pair_buffer import emit, emit_if, PairBuffer
+from collision_node.workers import Workers
 
 # Cell side / mean AABB side. Measured on uniform and seed scenes (README, "Broad phases").
 GRID_CELL_FACTOR = 1.5
@@ -47,6 +48,10 @@ GRID_CELL_FACTOR = 1.5
 # a scene near a threshold from rebuilding every tick.
 STATIC_RESIZE_RATIO = 4.0
 MAX_DYNAMIC_LOAD = 2.0
+# Buckets per chunk when the pair search is spread over threads: about one entry each, so a
+# chunk is ~1,000 boxes' worth of work (~50 µs).
+MIN_BUCKETS_PER_CHUNK = 2048
+GROWTH = 1.5
 
 
 class Grid:
@@ -54,8 +59,12 @@ class Grid:
 
     name = 'grid'
 
-    def __init__(self, settings=None):
-        self._buffer = PairBuffer()
+    def __init__(self, settings=None, workers=None):
+        self._workers = Workers() if workers is None else workers
+        # One buffer per chunk of buckets (see Workers.map_ranges), one for the big boxes.
+        self._buffers = [PairBuffer() for _ in range(self._workers.max_chunks)]
+        self._big_buffer = PairBuffer()
+        self._pairs = np.zeros((0, 2), np.int64)  # the parts joined
         self._dynamic = empty_table()
         self._static = empty_table()
         self._static_lattice = None   # None: static table to be built at the next tick
@@ -91,8 +100,27 @@ class Grid:
                 self._build_static(aabbs, n_static, wanted_side, entries)
                 self._fill_dynamic(aabbs, n_static, n_dynamic, self._static_lattice,
                                    self._static.sizes[3])
-        return self._buffer.fill(_grid_pairs, aabbs, n_static, n_total, self._dynamic,
-                                 self._static, self._order)
+        dynamic, static = self._dynamic, self._static
+
+        def chunk(k, first_bucket, stop_bucket):
+            return self._buffers[k].fill(_bucket_pairs, n_static, dynamic, static, first_bucket,
+                                         stop_bucket)
+
+        parts = self._workers.map_ranges(chunk, dynamic.sizes[1], MIN_BUCKETS_PER_CHUNK)
+        parts.append(self._big_buffer.fill(_big_pairs, aabbs, n_static, n_total, dynamic,
+                                           static))
+        spatial_order(dynamic, self._order)  # next tick's filling order
+        return self._joined([pairs for pairs, _ in parts]), sum(c for _, c in parts)
+
+    def _joined(self, parts):
+        """Return the pairs of all parts in one array (the only part, if the others are empty)."""
+        filled = [pairs for pairs in parts if len(pairs)]
+        if len(filled) <= 1:
+            return filled[0] if filled else parts[0]
+        count = sum(len(pairs) for pairs in filled)
+        if len(self._pairs) < count:
+            self._pairs = np.empty((int(count * GROWTH) + 1, 2), np.int64)
+        return np.concatenate(filled, out=self._pairs[:count])
 
     def _fill_dynamic(self, aabbs, n_static, n_dynamic, lattice, shift):
         self._dynamic = build_table(self._dynamic, lattice, aabbs, self._order, n_dynamic,
@@ -121,17 +149,17 @@ def _within_ratio(a, b, ratio):
 
 
 @kernel
-def _grid_pairs(aabbs, n_static, n_total, dynamic, static, order, out):
-    rows, boxes, is_big, big_rows = dynamic.rows, dynamic.aabbs, dynamic.is_big, \
-        dynamic.big_rows
-    sizes, bucket_end, entry_slot = dynamic.sizes, dynamic.bucket_end, dynamic.entry_slot
+def _bucket_pairs(n_static, dynamic, static, first_bucket, stop_bucket, out):
+    """Pairs of the small boxes entered in buckets ``[first_bucket, stop_bucket)``."""
+    rows, boxes = dynamic.rows, dynamic.aabbs
+    bucket_end, entry_slot = dynamic.bucket_end, dynamic.entry_slot
     entry_key, entry_first = dynamic.entry_key, dynamic.entry_first
     static_rows, static_boxes, static_end = static.rows, static.aabbs, static.bucket_end
     static_slot, static_key, static_first = static.entry_slot, static.entry_key, \
         static.entry_first
     count = 0
     compared = 0
-    for bucket in range(sizes[1]):
+    for bucket in range(first_bucket, stop_bucket):
         end = bucket_end[bucket]
         start = bucket_start(bucket_end, bucket)
         if start == end:
@@ -159,8 +187,17 @@ def _grid_pairs(aabbs, n_static, n_total, dynamic, static, order, out):
                 other = static_slot[s]
                 hit = owned & _overlaps(x0, y0, z0, x1, y1, z1, static_boxes, other)
                 count = emit_if(out, count, hit, row, static_rows[other])
-    for i in range(sizes[2]):  # big dynamic boxes: a brute-force row each
-        a = big_rows[i]
+    return count, compared
+
+
+@kernel
+def _big_pairs(aabbs, n_static, n_total, dynamic, static, out):
+    """Pairs of the big boxes, which are in no bucket: a brute-force row or column each."""
+    is_big = dynamic.is_big
+    count = 0
+    compared = 0
+    for i in range(dynamic.sizes[2]):  # big dynamic boxes: a brute-force row each
+        a = dynamic.big_rows[i]
         count, tested = pairs_with_all_dynamic(aabbs, a, n_static, n_total, is_big, out, count)
         compared += tested
         count, tested = pairs_with_all_static(aabbs, a, n_static, out, count)
@@ -172,7 +209,6 @@ def _grid_pairs(aabbs, n_static, n_total, dynamic, static, order, out):
                 compared += 1
                 if overlap_across(aabbs, a, aabbs, b):
                     count = emit(out, count, a, b, n_static)
-    spatial_order(dynamic, order)  # next tick's filling order
     return count, compared
 
 
