@@ -48,6 +48,7 @@ from sensor_msgs.msg import PointCloud2
 from collision_node import diagnostics
 from collision_node.broadphase import NAMES
 from collision_node.cdr import serialize_pose_array
+from collision_node.memory import keep_heap_memory
 from collision_node.messages import contacts_to_cloud, serialize_collisions
 from collision_node.node import CollisionNode
 from collision_node.scenes import uniform, UNIFORM_HALF_EXTENTS
@@ -110,10 +111,11 @@ def scene_input(bodies, statics, seed=0):
     return frames, static_poses, static_extents, np.full(3, np.mean(UNIFORM_HALF_EXTENTS))
 
 
-def node_parameters(static_poses, static_extents, dynamic_extents, broad_phase='auto'):
+def node_parameters(static_poses, static_extents, dynamic_extents, broad_phase='auto',
+                    threads=1):
     """Return the node's parameters for a scene, as name -> value."""
     names = ['s%d' % i for i in range(len(static_poses))]
-    values = {'broad_phase': broad_phase,
+    values = {'broad_phase': broad_phase, 'threads': threads,
               'dynamic.half_extents': dynamic_extents.ravel().tolist(),
               'diagnostic_updater.period': DIAGNOSTIC_PERIOD_S, 'input_timeout_s': 0.0,
               'static_colliders': names}
@@ -285,37 +287,40 @@ def stage_summary(statuses):
     return row
 
 
-def latency_section(plan, statics, broad_phase, domain_id, progress):
+def latency_section(plan, statics, broad_phase, thread_counts, domain_id, progress):
     rows = []
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain_id)
     client = Client(context)
+    runs = [(bodies, threads) for bodies in plan.sizes for threads in thread_counts]
     try:
         with tempfile.TemporaryDirectory() as directory:
-            for run, bodies in enumerate(plan.sizes):
+            for run, (bodies, threads) in enumerate(runs):
                 frames, static_poses, static_extents, dynamic_extents = scene_input(
                     bodies, statics)
                 frames = [serialize_pose_array(0, 0, 'world', poses) for poses in frames]
-                params_path = os.path.join(directory, 'params_%d.yaml' % bodies)
+                params_path = os.path.join(directory, 'params_%d.yaml' % run)
                 write_params_file(params_path, node_parameters(
-                    static_poses, static_extents, dynamic_extents, broad_phase))
+                    static_poses, static_extents, dynamic_extents, broad_phase, threads))
                 started = time.perf_counter()
                 process, log = start_node(params_path, domain_id)
                 try:
                     base = 1000 * (run + 1)
                     ready_s = wait_ready(client, process, log, frames[0], base, started)
                     settle(client, frames, base + 1)
-                    progress('%d bodies: node ready after %.2f s' % (bodies, ready_s))
+                    progress('%d bodies, %d thread(s): node ready after %.2f s'
+                             % (bodies, threads, ready_s))
                     for k, rate in enumerate(plan.rates):
                         time.sleep(DIAGNOSTIC_PERIOD_S + 0.1)  # no period spans two runs
                         row = run_rate(client, frames, rate, plan, base + 2 + k)
                         row.update(bodies=bodies, poses=bodies - len(static_poses),
-                                   statics=len(static_poses), ready_s=ready_s,
-                                   message_bytes=len(frames[0]))
+                                   statics=len(static_poses), threads=threads,
+                                   ready_s=ready_s, message_bytes=len(frames[0]))
                         rows.append(row)
-                        progress('%d bodies at %g Hz: median %s ms, %d of %d answered' % (
-                            bodies, rate, _fmt(row['latency_ms_median']), row['answered'],
-                            row['sent']))
+                        progress('%d bodies, %d thread(s) at %g Hz: median %s ms, %d of %d '
+                                 'answered' % (bodies, threads, rate,
+                                               _fmt(row['latency_ms_median']),
+                                               row['answered'], row['sent']))
                         if process.poll() is not None:
                             raise RuntimeError(node_failure(process, log))
                 finally:
@@ -535,9 +540,10 @@ def markdown(results):
         out += ['## PoseArray in → collisions out (ms)', '',
                 "Stage columns: the node's /diagnostics, median over 1-s periods of the "
                 "period's median. overhead = (parse + output + publish) / total.", '',
-                '| bodies | poses | statics | rate Hz | sent/s | answered | median | p99 | max '
-                '| parse | broad | narrow | output | publish | total | overhead | phase |',
-                '|' + '---|' * 17]
+                '| bodies | poses | statics | threads | rate Hz | sent/s | answered | median '
+                '| p99 | max | parse | broad | narrow | output | publish | total | overhead '
+                '| phase |',
+                '|' + '---|' * 18]
         for r in rows:
             overhead = None
             if r['total_ms_median']:
@@ -545,15 +551,16 @@ def markdown(results):
                                                  + r['publish_ms_median'])
                                         / r['total_ms_median'])
             out.append('| ' + ' | '.join(_fmt(v) for v in (
-                r['bodies'], r['poses'], r['statics'], r['rate_hz'], round(r['sent_rate_hz']),
+                r['bodies'], r['poses'], r['statics'], r['threads'], r['rate_hz'],
+                round(r['sent_rate_hz']),
                 '%d/%d' % (r['answered'], r['sent']), r['latency_ms_median'],
                 r['latency_ms_p99'], r['latency_ms_max'], r['parse_ms_median'],
                 r['broad_ms_median'], r['narrow_ms_median'], r['output_ms_median'],
                 r['publish_ms_median'],
                 r['total_ms_median'], overhead, r['broad_phase'])) + ' |')
-        ready = sorted({(r['bodies'], round(r['ready_s'], 2)) for r in rows})
+        ready = sorted({(r['bodies'], r['threads'], round(r['ready_s'], 2)) for r in rows})
         out += ['', 'Node ready (process start → first answer, warm cache): ' + ', '.join(
-            '%d bodies %.2f s' % item for item in ready), '']
+            '%d bodies (%d thread(s)) %.2f s' % item for item in ready), '']
     for title, key, columns in (
             ('Output: the cloud as bytes vs as a message object (ms)', 'output',
              ('bodies', 'contacts', 'bytes_write_ms', 'bytes_publish_ms', 'message_write_ms',
@@ -584,6 +591,8 @@ def parse_arguments(argv):
                         help="the scene's static half as the node's static_colliders")
     parser.add_argument('--broad-phase', default='auto', choices=NAMES,
                         help="the node's broad_phase parameter (default: auto)")
+    parser.add_argument('--threads', type=int, nargs='+', default=[1], metavar='T',
+                        help="the node's threads parameter; each count is a run (default: 1)")
     parser.add_argument('--sizes', type=int, nargs='+', metavar='N', help='body counts')
     parser.add_argument('--rates', type=float, nargs='+', metavar='HZ', help='input rates')
     parser.add_argument('--sections', nargs='+', default=['latency', 'output', 'skips',
@@ -600,6 +609,8 @@ def parse_arguments(argv):
         if min(options.rates) <= 0:
             parser.error('--rates must be positive')
         plan = plan._replace(rates=tuple(options.rates))
+    if min(options.threads) < 1:
+        parser.error('--threads must be positive')
     return options, plan
 
 
@@ -607,6 +618,7 @@ def main(args=None):
     """Run the sections asked for; print the tables; write JSON if asked."""
     argv = sys.argv[1:] if args is None else args
     options, plan = parse_arguments(argv)
+    keep_heap_memory()  # as the node does: receiving large clouds costs no page faults
     start = time.perf_counter()
 
     def progress(message):
@@ -621,7 +633,7 @@ def main(args=None):
     sections = options.sections
     if 'latency' in sections:
         results['latency'] = latency_section(plan, options.statics, options.broad_phase,
-                                             options.domain_id, progress)
+                                             options.threads, options.domain_id, progress)
     if 'output' in sections:
         results['output'] = output_section(plan, options.domain_id)
         progress('output done')

@@ -55,6 +55,7 @@ from collision_node.broadphase import NAMES
 from collision_node.cdr import CdrError, parse_pose_array
 from collision_node.contacts import CONTACT_DTYPE
 from collision_node.markers import MarkerWriter
+from collision_node.memory import keep_heap_memory
 from collision_node.messages import CloudWriter
 from collision_node.world import warm_up, World
 
@@ -270,6 +271,7 @@ class CollisionNode(Node):
 
 def main(args=None):
     """Run the node until shutdown; exit with status 2 on a bad parameter."""
+    keep_heap_memory()  # before the first large message: see collision_node.memory
     try:
         rclpy.init(args=args)
     except RuntimeError as error:  # e.g. a params file rcl cannot parse
