@@ -32,7 +32,9 @@ from collision_node.world import warm_up
 OCTREE_DEPTHS = tuple(range(1, 10))  # paper 001's Table 1
 PAPER000_OCTREE_DEPTH = 4            # paper 000's octree ran at depth 4
 DEFAULT_PHASE = 'auto'               # what the node uses unless told otherwise
-SECTIONS = ('paper001', 'octree_depths', 'paper000', 'scenes', 'accuracy', 'fcl', 'profile')
+SECTIONS = ('paper001', 'octree_depths', 'paper000', 'scenes', 'accuracy', 'fcl', 'profile',
+            'threads')
+THREAD_COUNTS = (1, 2)  # the World's threads: this machine's cores
 
 
 class Plan(NamedTuple):
@@ -49,6 +51,7 @@ class Plan(NamedTuple):
     accuracy_scenes: tuple     # (scene, bodies, ticks, dt)
     fcl_sizes: tuple           # (bodies, ticks) on the uniform scene
     profile_sizes: tuple       # (scene, bodies, ticks, dt): the targets' scenes
+    thread_sizes: tuple        # (bodies, ticks): uniform scene, default phase, 1 and 2 threads
     budget_s: float            # a run stops early (marked truncated) after this wall time
     # A run expected to take longer per tick is skipped; one stops after a tick that took
     # longer. Keep it >= 1 s: then a skipped run misses every DESIGN §5 target even if its
@@ -74,6 +77,7 @@ PLANS = {
         fcl_sizes=((1000, 60), (5000, 30), (10000, 20), (20000, 20)),
         profile_sizes=(('flying_out', 1024, 300, DT), ('uniform', 10000, 120, DT),
                        ('uniform', 100000, 30, DT)),
+        thread_sizes=((10000, 120), (100000, 30)),
         budget_s=120.0, max_tick_s=5.0),
     'quick': Plan(
         flying_out_sizes=(128, 256, 512, 1024), flying_out_ticks=60, flying_out_dt=5.0 / 60,
@@ -87,6 +91,7 @@ PLANS = {
         fcl_sizes=((1000, 10), (5000, 5), (20000, 3)),
         profile_sizes=(('flying_out', 1024, 60, 5.0 / 60), ('uniform', 10000, 20, DT),
                        ('uniform', 100000, 5, DT)),
+        thread_sizes=((10000, 40), (100000, 10)),
         budget_s=3.0, max_tick_s=1.0),
     # For the tests: every section on small scenes, in seconds.
     'tiny': Plan(
@@ -97,6 +102,7 @@ PLANS = {
                          ('uniform', 300, 5, DT), ('clustered', 300, 5, DT)),
         fcl_sizes=((300, 3),),
         profile_sizes=(('flying_out', 128, 5, 0.5), ('uniform', 1000, 3, DT)),
+        thread_sizes=((1000, 3),),
         budget_s=5.0, max_tick_s=1.0),
 }
 
@@ -356,6 +362,18 @@ class Bench:
             self.slow.record(key, bodies, row['tick_ms'])
             self.progress('%s: tick %.3f ms' % (label, row['tick_ms']))
         return dict(ids, **row)
+
+    def threads(self):
+        """The default phase on the uniform scene, its World on 1 and on 2 threads."""
+        rows = []
+        for bodies, ticks in self.plan.thread_sizes:
+            scene = self.scene('uniform', bodies)
+            for threads in THREAD_COUNTS:
+                rows.append(self._world_row(
+                    scene, ticks, DT, 'threads uniform n=%d threads=%d' % (bodies, threads),
+                    {'scene': 'uniform', 'bodies': bodies, 'broad_phase': DEFAULT_PHASE,
+                     'threads': threads}, broad_phase=DEFAULT_PHASE, threads=threads))
+        return rows
 
     def _quickest_phase(self, scene_name, bodies):
         """Name the phase with the lowest median tick at the largest size <= bodies."""

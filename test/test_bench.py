@@ -62,8 +62,16 @@ def test_markdown_tables_have_the_named_columns(tiny_run):
                    'most compared'):
         assert column in paper
     for heading in ('## Targets (DESIGN §5)', '## Paper 000', '## python-fcl side by side',
-                    '## Where a tick goes'):
+                    '## Where a tick goes', '## Threads'):
         assert heading in markdown
+
+
+def test_threads_section_finds_the_same_contacts_with_each_thread_count(tiny_run):
+    _, _, results = tiny_run
+    rows = results['threads']
+    assert [row['threads'] for row in rows] == list(bench.THREAD_COUNTS)
+    assert all('median_ms' in row for row in rows)
+    assert len({(row['colliding_min'], row['colliding_max']) for row in rows}) == 1
 
 
 def test_every_broad_phase_runs_in_every_mode(tiny_run):

@@ -294,6 +294,15 @@ def markdown(results, plot_note):
                        ('find_pairs', _get('find_pairs_ms')), ('SAT', _get('sat_ms')),
                        ('contacts', _get('contacts_ms'))],
                       results['profile']), '']
+    if 'threads' in results:
+        out += ['## Threads (the `threads` parameter; median ms per tick)', '',
+                'The default phase on the uniform scene, half static, its World on 1 and 2 '
+                'threads, ticks back to back. Through ROS, with idle time between inputs, '
+                'see collision_latency --threads.', '',
+                table([('bodies', _get('bodies')), ('threads', _get('threads')),
+                       ('broad phase', _phase_label), ('ticks', _ticks),
+                       ('median ms', _get('median_ms')), ('p99 ms', _get('p99_ms'))],
+                      results['threads']), '']
     return '\n'.join(out)
 
 

@@ -91,6 +91,7 @@ def run_world(scene, ticks, dt, limits, **world_options):
         stopped = limits.reason_to_stop(started, 1e-3 * tick_ms[-1])
         if stopped:
             break
+    world.close()
     row = summarize(tick_ms, ticks, stopped,
                     compared=[s['compared'] for s in stats],
                     candidate_pairs=[s['candidate_pairs'] for s in stats],
