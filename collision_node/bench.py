@@ -364,7 +364,7 @@ class Bench:
         return dict(ids, **row)
 
     def threads(self):
-        """The default phase on the uniform scene, its World on 1 and on 2 threads."""
+        """Time the default phase on the uniform scene, its World on 1 and on 2 threads."""
         rows = []
         for bodies, ticks in self.plan.thread_sizes:
             scene = self.scene('uniform', bodies)
