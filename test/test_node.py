@@ -98,11 +98,13 @@ def test_rejected_input_is_reported_and_not_answered(harness, case):
     assert not room.clouds
 
 
-def test_large_input_against_brute_force(harness):
+@pytest.mark.parametrize('threads', [1, 2])
+def test_large_input_against_brute_force(harness, threads):
     scene = scenes.uniform(20000, seed=5)  # 10,000 dynamic boxes: a 560 KB PoseArray
     poses = scene.dynamic_poses(0.7)
     names = ['s%d' % i for i in range(len(scene.static_poses))][:50]
-    overrides = {'static_colliders': names, 'dynamic.half_extents':
+    # Two threads: the grid and the SAT run in several chunks at this size.
+    overrides = {'static_colliders': names, 'threads': threads, 'dynamic.half_extents':
                  scene.dynamic_half_extents.ravel().tolist()}
     for i, name in enumerate(names):
         overrides['%s.pose' % name] = scene.static_poses[i].tolist()
