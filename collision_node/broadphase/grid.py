@@ -48,8 +48,9 @@ GRID_CELL_FACTOR = 1.5
 # a scene near a threshold from rebuilding every tick.
 STATIC_RESIZE_RATIO = 4.0
 MAX_DYNAMIC_LOAD = 2.0
-# Buckets per chunk when the pair search is spread over threads: about one entry each, so a
-# chunk is ~1,000 boxes' worth of work (~50 µs).
+# Least buckets in a chunk when the pair search is spread over threads: a bucket holds at most
+# half an entry on average (BUCKETS_PER_ENTRY), so a chunk is up to ~1,000 entries' work, well
+# above the ~10-50 µs a helper's dispatch costs.
 MIN_BUCKETS_PER_CHUNK = 2048
 GROWTH = 1.5
 
