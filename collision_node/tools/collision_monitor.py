@@ -12,8 +12,6 @@ import sys
 import textwrap
 
 from diagnostic_msgs.msg import DiagnosticArray
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
@@ -21,6 +19,7 @@ from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import PointCloud2
 
 from collision_node.messages import cloud_to_contacts
+from collision_node.tools.processes import spin_until_finished
 
 BODY_TYPE_LETTERS = {0: 'd', 1: 's'}  # type 0 = dynamic, 1 = static (DESIGN §3)
 LEVEL_NAMES = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
@@ -132,15 +131,8 @@ def parse_arguments(argv):
 
 def main(args=None):
     options = parse_arguments(remove_ros_args(args)[1:])
-    rclpy.init(args=args)
-    node = CollisionMonitor(options.period, options.contacts, options.once)
-    try:
-        rclpy.spin_until_future_complete(node, node.finished)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_until_finished(args, lambda: CollisionMonitor(options.period, options.contacts,
+                                                       options.once))
 
 
 if __name__ == '__main__':

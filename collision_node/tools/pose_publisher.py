@@ -15,9 +15,7 @@ import sys
 
 from geometry_msgs.msg import PoseArray
 import numpy as np
-import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
@@ -25,6 +23,7 @@ from rclpy.utilities import remove_ros_args
 
 from collision_node.cdr import serialize_pose_array
 from collision_node.scenes import make_scene, ROOM_DYNAMIC_COUNT, SCENES
+from collision_node.tools.processes import spin_until_finished
 
 TOPIC = 'dynamic_poses'
 # Scenes other than the room are sized by their total body count (uniform ones keep half of
@@ -146,16 +145,8 @@ def main(args=None):
     except ValueError as error:
         parser.error(str(error))
 
-    rclpy.init(args=args)
-    node = PosePublisher(frames, options.rate, options.frame_id, options.count,
-                         options.wait_for_subscriber)
-    try:
-        rclpy.spin_until_future_complete(node, node.finished)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_until_finished(args, lambda: PosePublisher(frames, options.rate, options.frame_id,
+                                                    options.count, options.wait_for_subscriber))
 
 
 if __name__ == '__main__':

@@ -1,6 +1,26 @@
-"""Child processes of the tools (the node, the pose publisher): stopping them cleanly."""
+"""The tools' processes: a tool's node run until it is done, child processes stopped cleanly."""
 import signal
 import subprocess
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+
+
+def spin_until_finished(args, make_node):
+    """Init rclpy with ``args``, spin ``make_node()`` until its ``finished`` future is done.
+
+    Ctrl-C and an external shutdown end the spin quietly; the node is destroyed and rclpy
+    shut down either way.
+    """
+    rclpy.init(args=args)
+    node = make_node()
+    try:
+        rclpy.spin_until_future_complete(node, node.finished)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
 
 
 def stop_process(process, timeout_s, on_timeout=lambda signal_name: None):
