@@ -24,11 +24,11 @@ in the PoseArray (the node's worst case: every pose parsed, stepped and drawn); 
 gives the scene's static half to the node as ``static_colliders`` instead (DESIGN §5's scene).
 """
 import argparse
+import itertools
 import json
 import os
 import platform
 import shlex
-import signal
 import subprocess
 import sys
 import tempfile
@@ -42,16 +42,16 @@ import numpy as np
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from collision_node import diagnostics
 from collision_node.broadphase import NAMES
-from collision_node.cdr import serialize_pose_array
+from collision_node.cdr import ENCAPSULATION_SIZE, serialize_pose_array
 from collision_node.memory import keep_heap_memory
 from collision_node.messages import contacts_to_cloud, serialize_collisions
-from collision_node.node import CollisionNode
+from collision_node.node import CollisionNode, INPUT_QOS, OUTPUT_QOS  # the node's own QoS
 from collision_node.scenes import uniform, UNIFORM_HALF_EXTENTS
+from collision_node.tools.processes import stop_process
 from collision_node.world import World
 
 STATUS_NAME = 'collision_node: collision_check'
@@ -65,11 +65,8 @@ SETTLE_ANSWERS = 12    # answered inputs before a size is measured (auto settles
 STRAGGLER_S = 2.0      # after a run: time for answers still on their way
 READY_TIMEOUT_S = 300.0
 SKIP_TICKS = 30        # timed ticks per case of the skips section
-STAMP_OFFSET = 4       # the stamp (int32 sec, uint32 nanosec) follows the CDR header
-INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                       reliability=ReliabilityPolicy.RELIABLE)
-OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                        reliability=ReliabilityPolicy.RELIABLE)
+STAMP_OFFSET = ENCAPSULATION_SIZE  # the stamp (int32 sec, uint32 nanosec) follows the header
+NODE_STOP_TIMEOUT_S = 10.0
 
 
 class Plan(NamedTuple):
@@ -199,12 +196,7 @@ def start_node(params_path, domain_id, cache_dir=None):
 
 
 def stop_node(process, log):
-    process.send_signal(signal.SIGINT)
-    try:
-        process.wait(10.0)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait()
+    stop_process(process, NODE_STOP_TIMEOUT_S)
     log.close()
 
 
@@ -420,15 +412,11 @@ def tick_ms(context, case, ticks):
     node = CollisionNode(context=context, parameter_overrides=[
         Parameter(name, value=value) for name, value in case.parameters.items()
         if value != []])  # an empty list has no type in rclpy
+    frames = itertools.cycle(case.frames)
     try:
-        for k in range(3):  # the World's first steps build what later ones reuse
-            node._check(case.frames[k % len(case.frames)])
-        times = []
-        for k in range(ticks):
-            start = time.perf_counter()
-            node._check(case.frames[k % len(case.frames)])
-            times.append(time.perf_counter() - start)
-        return 1e3 * float(np.median(times))
+        for _ in range(3):  # the World's first steps build what later ones reuse
+            node._check(next(frames))
+        return _median_ms(lambda: node._check(next(frames)), ticks)
     finally:
         node.destroy_node()
 

@@ -36,14 +36,12 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import PointCloud2
 
-from collision_node.cdr import serialize_pose_array
+from collision_node.cdr import ENCAPSULATION_SIZE, serialize_pose_array
+from collision_node.node import INPUT_QOS  # the node's own input QoS
 from collision_node.scenes import make_scene, SCENES
 from collision_node.tools.processes import stop_process
 
 STATUS_NAME = 'collision_node: collision_check'
-# The node's input QoS (DESIGN §3): the newest input wins, reliable for large PoseArrays.
-INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                       reliability=ReliabilityPolicy.RELIABLE)
 OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                         reliability=ReliabilityPolicy.RELIABLE)
 DIAGNOSTIC_PERIOD_S = 0.5
@@ -56,7 +54,6 @@ READY_TIMEOUT_S = 120.0  # a cold numba cache compiles for tens of seconds
 SETTLE_TIMEOUT_S = 15.0  # after the last input, for the diagnostics to count it
 STOP_TIMEOUT_S = 10.0
 STAMP = struct.Struct('<iI')  # header stamp at the start of a little-endian CDR body
-ENCAPSULATION_SIZE = 4
 
 
 def write_params(path, scene, broad_phase):
