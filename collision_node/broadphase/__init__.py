@@ -22,7 +22,7 @@ holds:
     valid until the next call.
 ``name``
     The phase's name in :data:`NAMES`; ``auto`` sets it to the phase that ran last.
-``stats`` (optional)
+``stats``
     A dict of the phase's own counters (octree leaves created and dropped, bodies that stayed
     in their leaves, sorts, builds, ...) for the diagnostics.
 

@@ -30,7 +30,6 @@ MARGIN = 1.25             # thresholds move by this factor away from the phase i
 URGENT_MARGIN = 8.0       # beyond a threshold by this factor: switch without waiting
 SWITCH_AFTER_TICKS = 8    # ticks a new choice must hold before it is taken
 
-PHASES = {phase.name: phase for phase in (BruteForce, SweepAndPrune, Grid)}
 SIMPLER = {BruteForce.name: 0, SweepAndPrune.name: 1, Grid.name: 2}  # threshold order
 
 
@@ -70,7 +69,7 @@ class Auto:
         phase = self._phase(self._current)
         pairs = phase.find_pairs(boxes, n_static, n_dynamic)
         self.name = phase.name
-        self.stats = dict(getattr(phase, 'stats', {}), auto_switches=self.switches)
+        self.stats = dict(phase.stats, auto_switches=self.switches)
         return pairs
 
     def _choose(self, aabbs, n_static, n_dynamic, margin):

@@ -25,6 +25,7 @@ from typing import NamedTuple
 import numpy as np
 
 from collision_node._jit import kernel
+from collision_node.broadphase.hash_map import HASH_MULTIPLIER  # Fibonacci hashing
 from collision_node.broadphase.pair_buffer import emit
 from collision_node.obb import aabbs_overlap
 
@@ -39,8 +40,6 @@ MIN_CELL = -KEY_OFFSET
 # box is far larger than the cells and the brute-force row becomes the cheaper way.
 MAX_CELLS_PER_BODY = 64
 ALL_FIRST = 7  # first_cell_flags of a pair's first shared cell, or'ed over the two boxes
-# Fibonacci hashing: multiply by 2**64 / golden ratio and keep the top bits (Knuth 6.4).
-HASH_MULTIPLIER = np.uint64(0x9E3779B97F4A7C15)
 BLOCK_BITS = 2  # hash blocks of 4 x 4 x 4 cells (see bucket_of)
 BLOCK_MASK = (1 << BLOCK_BITS) - 1
 LOCAL_BITS = 3 * BLOCK_BITS

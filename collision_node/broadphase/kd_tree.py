@@ -238,7 +238,6 @@ def _tree_pairs(tree, static, aabbs, n_static, stack, out):
 def _query(aabbs, a, first, perm, node_start, node_end, bounds, stack, out, count, dynamic):
     """Pairs of box ``a`` with the tree's boxes at positions >= ``first``."""
     compared = 0
-    top = 0
     stack[0] = 0
     top = 1
     n_nodes = len(node_start)
