@@ -4,9 +4,8 @@ The baseline of both seed papers, O(D·S + D²/2) comparisons. The comparison is
 overlap test; the ``sphere`` phase runs the same loop with the bounding-sphere test.
 """
 from collision_node._jit import kernel
-from collision_node.broadphase.cell_table import overlap_across
 from collision_node.broadphase.pair_buffer import emit, PairBuffer
-from collision_node.obb import spheres_apart
+from collision_node.obb import overlap_across, spheres_apart
 
 CHUNK = 32  # rows tested together before any pair is stored
 

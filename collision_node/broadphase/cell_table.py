@@ -166,16 +166,3 @@ def spatial_order(table, order):
         order[n] = big_rows[i]
         n += 1
     return n
-
-
-@kernel
-def overlap_across(aabbs_a, a, aabbs_b, b):
-    """:func:`collision_node.obb.aabbs_overlap` for boxes in two arrays (closed intervals).
-
-    Computed without branches: in a cell the outcome is a coin flip, and six unpredictable
-    branches cost more than six comparisons (measured 3x slower with branches).
-    """
-    apart = (aabbs_a[a, 0, 0] > aabbs_b[b, 1, 0]) | (aabbs_b[b, 0, 0] > aabbs_a[a, 1, 0]) \
-        | (aabbs_a[a, 0, 1] > aabbs_b[b, 1, 1]) | (aabbs_b[b, 0, 1] > aabbs_a[a, 1, 1]) \
-        | (aabbs_a[a, 0, 2] > aabbs_b[b, 1, 2]) | (aabbs_b[b, 0, 2] > aabbs_a[a, 1, 2])
-    return not apart

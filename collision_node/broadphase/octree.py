@@ -62,7 +62,7 @@ from collision_node.broadphase.cells import (
     ALL_FIRST, cell_key, cell_range, first_cell_flags, make_lattice, MAX_CELLS_PER_BODY,
     mean_side_and_center, pairs_with_all_dynamic, pairs_with_all_static)
 from collision_node.broadphase.pair_buffer import emit, emit_if, PairBuffer
-from collision_node.obb import aabbs_overlap
+from collision_node.obb import aabbs_overlap, overlap_across
 
 NULL = -1  # no leaf, no entry
 
@@ -541,8 +541,8 @@ def _leaf_pairs(state, aabbs, n_static, n_total, out):
                 owned = (member_flags[i] | member_flags[j]) == ALL_FIRST
                 compared += owned
                 b = members[j]
-                count = emit_if(out, count, owned & aabbs_overlap(aabbs, a, b), min(a, b),
-                                max(a, b))
+                count = emit_if(out, count, owned & overlap_across(aabbs, a, aabbs, b),
+                                min(a, b), max(a, b))
         start = leaves[leaf, LEAF_STATIC_START]
         for t in range(start, start + leaves[leaf, LEAF_STATIC_COUNT]):
             s = static_members[t]
@@ -550,7 +550,7 @@ def _leaf_pairs(state, aabbs, n_static, n_total, out):
             for i in range(m):
                 owned = (member_flags[i] | flags) == ALL_FIRST
                 compared += owned
-                count = emit_if(out, count, owned & aabbs_overlap(aabbs, members[i], s),
+                count = emit_if(out, count, owned & overlap_across(aabbs, members[i], aabbs, s),
                                 members[i], s)
     is_big = bodies[:, BODY_STATE] == BIG if counters[BIG_DYNAMIC] else bodies[:0, 0] == BIG
     for i in range(counters[BIG_DYNAMIC]):
