@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from collision_node.broadphase import NAMES
-from collision_node.obb import QUATERNION_NORM_TOLERANCE
+from collision_node.obb import MAX_COORDINATE, QUATERNION_NORM_TOLERANCE
 from collision_node.world import World
 
 # Type names as in the DESIGN table; declare() maps them to rclpy's Parameter.Type.
@@ -305,6 +305,8 @@ def _pose(name, values):
     pose = np.array(values, dtype=np.float64)
     if not np.all(np.isfinite(pose)):
         raise ParameterError(name, 'has a NaN or infinite value: %s' % (values,))
+    if np.max(np.abs(pose[:3])) > MAX_COORDINATE:  # the World's bound on every body
+        raise ParameterError(name, 'position %s is beyond +-%g m' % (values[:3], MAX_COORDINATE))
     norm = float(np.linalg.norm(pose[3:]))
     if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
         raise ParameterError(name, 'quaternion qx qy qz qw = %s has norm %.6g; it must be a '
@@ -322,10 +324,11 @@ def _half_extents(name, values, single):
         raise ParameterError(name, 'needs 3 values (one size for all dynamic bodies) or 3 per '
                                    'body, got %d' % len(values))
     extents = np.array(values, dtype=np.float64)
-    bad = np.flatnonzero(~(np.isfinite(extents) & (extents >= 0.0)))
+    bad = np.flatnonzero(~(np.isfinite(extents) & (extents >= 0.0)
+                           & (extents <= MAX_COORDINATE)))
     if len(bad):
-        raise ParameterError(name, 'value %d is %r; half extents must be finite and >= 0'
-                             % (bad[0], values[bad[0]]))
+        raise ParameterError(name, 'value %d is %r; half extents must be finite, >= 0 and <= %g'
+                             % (bad[0], values[bad[0]], MAX_COORDINATE))
     return extents if len(extents) == 3 else extents.reshape(-1, 3)
 
 

@@ -34,6 +34,11 @@ BAD = {
                         '>= 0'),
     'NaN extent': ({'table.half_extents': [0.6, math.nan, 0.02]}, 'table.half_extents',
                    'finite'),
+    # The World's bound on every body: caught here, a far collider would stop the node with a
+    # traceback at start (or in the parameter callback, once a disabled one is enabled).
+    'collider beyond 1e9 m': ({'shelf.pose': [2e9, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]}, 'shelf.pose',
+                              'beyond'),
+    'huge extent': ({'table.half_extents': [0.6, 2e9, 0.02]}, 'table.half_extents', '<= 1e+09'),
     'string enabled': ({'table.enabled': 'yes'}, 'table.enabled', 'bool'),
     'dynamic extents 4': ({'dynamic.half_extents': [0.1, 0.1, 0.1, 0.1]},
                           'dynamic.half_extents', '3 per body'),
