@@ -16,6 +16,8 @@ marker, whatever the frame_id. The first marker is the DELETEALL, serialised by 
     publisher.publish(writer.serialize(sec, nanosec, static_poses, static_half_extents,
                                        static_ids, poses, half_extents, contacts))
 """
+import struct
+
 import numpy as np
 from rclpy.serialization import serialize_message
 from std_msgs.msg import ColorRGBA, Header
@@ -130,8 +132,9 @@ class MarkerWriter:
         arrow_scales[:, 1:] = (NORMAL_ARROW_WIDTH, 2.0 * NORMAL_ARROW_WIDTH)
 
         head = self._head.copy()
-        head[HEAD_STAMP_OFFSET:HEAD_STAMP_OFFSET + 8] = np.array([sec, nanosec], '<u4').view(
-            np.uint8)
+        # int32 sec, uint32 nanosec: a stamp before 1970 (negative sec) is a valid stamp.
+        head[HEAD_STAMP_OFFSET:HEAD_STAMP_OFFSET + 8] = np.frombuffer(
+            struct.pack('<iI', sec, nanosec), np.uint8)
         parts = [head]
         for kind, ids, group_poses, scales, colors in (
                 (self.static, static_ids, static_poses, 2.0 * static_half_extents,

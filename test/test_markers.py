@@ -101,6 +101,14 @@ def test_markers_deserialise_to_the_reference(frame_id, bodies, disabled_every):
                                                contact['normal_z']], atol=1e-12)
 
 
+@pytest.mark.parametrize('sec, nanosec', [(-5, 7), (-2**31, 999999999), (2**31 - 1, 0)])
+def test_every_marker_carries_the_input_stamp_negative_too(sec, nanosec):
+    data = MarkerWriter('world').serialize(sec, nanosec, *scene_case(40, seed=9))
+    got = deserialize_message(data, MarkerArray).markers
+    assert len(got) > 1
+    assert {(m.header.stamp.sec, m.header.stamp.nanosec) for m in got} == {(sec, nanosec)}
+
+
 def test_one_size_for_all_bodies_and_float32_contacts():
     static_poses, static_extents, static_ids, poses, extents, contacts = scene_case(100, 4)
     cloud_like = contacts.astype([(name, '<f4' if contacts.dtype[name].kind == 'f' else '<u4')
