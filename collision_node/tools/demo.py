@@ -78,7 +78,6 @@ class Demo(Node):
         super().__init__('collision_demo')
         self.children = children
         self.finished = Future()
-        self.heard_from_node = False
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                          reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(DiagnosticArray, '/diagnostics', self.on_diagnostics, qos)
@@ -87,7 +86,6 @@ class Demo(Node):
     def on_diagnostics(self, msg):
         for status in msg.status:
             if status.name.endswith(STATUS_SUFFIX):
-                self.heard_from_node = True
                 print(summary(status), flush=True)
 
     def check_children(self):

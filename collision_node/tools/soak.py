@@ -124,7 +124,6 @@ class Soak:
     """The publisher, the listeners and the bookkeeping of one soak run (node: a child pid)."""
 
     def __init__(self, node, frames, rate_hz, pid):
-        self.node = node
         self.frames = frames
         self.rate_hz = rate_hz
         self.pid = pid
@@ -335,7 +334,6 @@ def run(options, args):
     listener.create_timer(RSS_PERIOD_S, soak.sample_rss)
     publisher = threading.Thread(target=soak.publish_loop, daemon=True)
     publisher.start()
-    node_exit = None
     ready_s = None
     try:
         deadline = time.monotonic() + READY_TIMEOUT_S
@@ -371,12 +369,13 @@ def run(options, args):
     finally:
         soak.stop_publishing.set()
         soak.first_answer.set()  # a publisher still waiting for it goes too
-        died = process.poll()
-        node_exit = stop_node(process) if died is None else died
+        died = process.poll()  # None: alive until the end, then stopped here
+        if died is None:
+            stop_node(process)
         executor.shutdown()
         listener.destroy_node()
         rclpy.try_shutdown()
-    summary = soak.summary(options, ready_s, None if died is None else node_exit)
+    summary = soak.summary(options, ready_s, died)
     return summary
 
 
