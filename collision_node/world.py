@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node.broadphase import check_settings, make_broad_phase, NAMES, Settings
+from collision_node.broadphase import make_broad_phase, NAMES, Settings
 from collision_node.contacts import (  # noqa: F401 (DYNAMIC, STATIC re-exported)
     assemble_contacts, CONTACT_DTYPE, DYNAMIC, orient_pairs, STATIC)
 from collision_node.obb import Boxes, MAX_COORDINATE, set_boxes
@@ -88,14 +88,10 @@ class World:
                 ('octree_max_depth', octree_max_depth),
                 ('octree_leaf_cooldown_ticks', octree_leaf_cooldown_ticks))
             if value is not None})
-        if name not in NAMES:
-            raise ValueError('unknown broad phase %r; choose one of %s'
-                             % (name, ', '.join(NAMES)))
-        check_settings(settings)
         if self._phase is None or name != self._phase_name or settings != self._settings:
-            self._phase_name, self._settings = name, settings
-            self._phase = make_broad_phase(name, settings, self._workers)
-            self._phase.set_static(self._boxes, self._n_static)
+            phase = make_broad_phase(name, settings, self._workers)  # checks name and settings
+            phase.set_static(self._boxes, self._n_static)
+            self._phase_name, self._settings, self._phase = name, settings, phase
             self._last = None
 
     def set_static(self, poses, half_extents, ids=None):

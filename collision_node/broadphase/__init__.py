@@ -72,12 +72,12 @@ def make_broad_phase(name, settings=Settings(), workers=None):
     ``workers`` (default: the caller's thread only) is handed to the phases that use threads.
     Raises ValueError for an unknown name or invalid settings (:func:`check_settings`).
     """
+    if name not in NAMES:
+        raise ValueError('unknown broad phase %r; choose one of %s' % (name, ', '.join(NAMES)))
     check_settings(settings)
     if name == 'auto':
         from collision_node.broadphase.auto import Auto
         return Auto(settings, workers)
-    if name not in BROAD_PHASES:
-        raise ValueError('unknown broad phase %r; choose one of %s' % (name, ', '.join(NAMES)))
     if name == Grid.name:
         return Grid(settings, workers)
     return BROAD_PHASES[name](settings)
