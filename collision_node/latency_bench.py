@@ -50,6 +50,7 @@ from collision_node.cdr import ENCAPSULATION_SIZE, serialize_pose_array
 from collision_node.memory import keep_heap_memory
 from collision_node.messages import contacts_to_cloud, serialize_collisions
 from collision_node.node import CollisionNode, INPUT_QOS, OUTPUT_QOS  # the node's own QoS
+from collision_node.params import scene_parameters, write_params_file
 from collision_node.scenes import uniform, UNIFORM_HALF_EXTENTS
 from collision_node.tools.processes import stop_process
 from collision_node.world import World
@@ -111,21 +112,9 @@ def scene_input(bodies, statics, seed=0):
 def node_parameters(static_poses, static_extents, dynamic_extents, broad_phase='auto',
                     threads=1):
     """Return the node's parameters for a scene, as name -> value."""
-    names = ['s%d' % i for i in range(len(static_poses))]
-    values = {'broad_phase': broad_phase, 'threads': threads,
-              'dynamic.half_extents': dynamic_extents.ravel().tolist(),
-              'diagnostic_updater.period': DIAGNOSTIC_PERIOD_S, 'input_timeout_s': 0.0,
-              'static_colliders': names}
-    for name, pose, extents in zip(names, static_poses.tolist(), static_extents.tolist()):
-        values[name + '.pose'], values[name + '.half_extents'] = pose, extents
-    return values
-
-
-def write_params_file(path, values):
-    """Write a --params-file for the node (JSON is YAML); empty lists (untyped) left out."""
-    with open(path, 'w') as out:
-        json.dump({'collision_node': {'ros__parameters': {
-            name: value for name, value in values.items() if value != []}}}, out)
+    return scene_parameters(static_poses, static_extents, dynamic_extents,
+                            broad_phase=broad_phase, threads=threads, input_timeout_s=0.0,
+                            **{'diagnostic_updater.period': DIAGNOSTIC_PERIOD_S})
 
 
 class Client:

@@ -9,6 +9,7 @@ Validation is plain Python on plain values, so tests call it without ROS:
 them back through :func:`parse`. Every problem raises :class:`ParameterError`, whose text names
 the parameter and says what is wrong with it.
 """
+import json
 import math
 import re
 import reprlib
@@ -240,6 +241,31 @@ def declare(node):
             name = '%s.%s' % (collider, key)
             values[name] = declare_one(name, spec)
     return parse(values)
+
+
+def scene_parameters(static_poses, static_half_extents, dynamic_half_extents, **values):
+    """Return the node's parameters for a scene (name -> value), e.g. for a params file.
+
+    The static boxes become colliders ``s0``, ``s1``, ... in their order; ``values`` sets the
+    other parameters by name (``**{'diagnostic_updater.period': 0.5}`` for dotted names).
+    """
+    names = ['s%d' % i for i in range(len(static_poses))]
+    values = dict(values, static_colliders=names, **{
+        'dynamic.half_extents': np.asarray(dynamic_half_extents, np.float64).ravel().tolist()})
+    for name, pose, extents in zip(names, np.asarray(static_poses, np.float64).tolist(),
+                                   np.asarray(static_half_extents, np.float64).tolist()):
+        values[name + '.pose'], values[name + '.half_extents'] = pose, extents
+    return values
+
+
+def write_params_file(path, values, node_name='collision_node'):
+    """Write ``values`` (name -> value) as a --params-file (JSON is YAML).
+
+    Empty lists are left out: they have no type in a ROS parameter file.
+    """
+    with open(path, 'w') as out:
+        json.dump({node_name: {'ros__parameters': {
+            name: value for name, value in values.items() if value != []}}}, out)
 
 
 def _plain(value):

@@ -250,3 +250,19 @@ def test_process_exits_on_an_unparsable_params_file(tmp_path):
     assert done.returncode == 2
     assert 'Sequence should be of same type' in done.stderr
     assert 'Traceback' not in done.stderr
+
+
+def test_scene_parameters_parse_back_to_the_scene(tmp_path):
+    rng = np.random.default_rng(3)
+    poses = np.concatenate([rng.normal(size=(4, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (4, 1))], 1)
+    extents = rng.uniform(0.1, 0.5, (4, 3))
+    values = params.scene_parameters(poses, extents, [0.2, 0.2, 0.2], broad_phase='grid',
+                                     **{'diagnostic_updater.period': 0.5})
+    parsed = params.parse(values)
+    assert [c.name for c in parsed.colliders] == ['s0', 's1', 's2', 's3']
+    np.testing.assert_array_equal([c.pose for c in parsed.colliders], poses)
+    np.testing.assert_array_equal([c.half_extents for c in parsed.colliders], extents)
+    assert (parsed.broad_phase, parsed.diagnostic_period_s) == ('grid', 0.5)
+    path = tmp_path / 'scene.yaml'
+    params.write_params_file(path, params.scene_parameters(poses[:0], extents[:0], [0.1] * 3))
+    assert 'static_colliders' not in path.read_text()  # an empty list has no type

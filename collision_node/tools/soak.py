@@ -38,6 +38,7 @@ from sensor_msgs.msg import PointCloud2
 
 from collision_node.cdr import ENCAPSULATION_SIZE, serialize_pose_array
 from collision_node.node import INPUT_QOS  # the node's own input QoS
+from collision_node.params import scene_parameters, write_params_file
 from collision_node.scenes import make_scene, SCENES
 from collision_node.tools.processes import stop_process
 
@@ -54,28 +55,6 @@ READY_TIMEOUT_S = 120.0  # a cold numba cache compiles for tens of seconds
 SETTLE_TIMEOUT_S = 15.0  # after the last input, for the diagnostics to count it
 STOP_TIMEOUT_S = 10.0
 STAMP = struct.Struct('<iI')  # header stamp at the start of a little-endian CDR body
-
-
-def write_params(path, scene, broad_phase):
-    """Write the node's params file for ``scene``: its statics as colliders s0, s1, ..."""
-    def numbers(values):
-        # Every number with a decimal point: the parameters are typed doubles.
-        return '[%s]' % ', '.join(np.format_float_positional(float(v), trim='0')
-                                  for v in values)
-
-    names = ['s%d' % i for i in range(len(scene.static_poses))]
-    lines = ['collision_node:', '  ros__parameters:',
-             '    broad_phase: %s' % broad_phase,
-             '    input_timeout_s: 2.0',
-             '    diagnostic_updater:', '      period: %s' % DIAGNOSTIC_PERIOD_S,
-             '    dynamic:', '      half_extents: %s' % numbers(
-                 scene.dynamic_half_extents.ravel()),
-             '    static_colliders: [%s]' % ', '.join(names)]
-    for name, pose, extents in zip(names, scene.static_poses, scene.static_half_extents):
-        lines += ['    %s:' % name, '      pose: %s' % numbers(pose),
-                  '      half_extents: %s' % numbers(extents)]
-    with open(path, 'w') as stream:
-        stream.write('\n'.join(lines) + '\n')
 
 
 def rss_mb(pid):
@@ -320,7 +299,10 @@ def run(options, args):
     frames = prepared_frames(scene)
     workdir = tempfile.mkdtemp(prefix='collision_soak_')
     params_path = os.path.join(workdir, 'params.yaml')
-    write_params(params_path, scene, options.broad_phase)
+    write_params_file(params_path, scene_parameters(
+        scene.static_poses, scene.static_half_extents, scene.dynamic_half_extents,
+        broad_phase=options.broad_phase, input_timeout_s=2.0,
+        **{'diagnostic_updater.period': DIAGNOSTIC_PERIOD_S}))
     print('collision_soak: %s scene, %d bodies (%d moving), %g Hz, %s' % (
         options.scene, options.bodies, scene.dynamic_count, options.rate,
         '%d ticks' % options.ticks if options.ticks else '%g s' % options.duration), flush=True)
