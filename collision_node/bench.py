@@ -23,7 +23,8 @@ import numpy as np
 from collision_node.benchmarks import report
 from collision_node.benchmarks.accuracy import accuracy_rows
 from collision_node.benchmarks.fcl_reference import compare_with_fcl, fcl_available, INSTALL_HINT
-from collision_node.benchmarks.runs import Limits, run_all_pairs_sat, run_world, warmed
+from collision_node.benchmarks.runs import (
+    Limits, run_all_pairs_sat, run_world, WARM_UP_BODIES, WARM_UP_TICKS, warmed)
 from collision_node.benchmarks.stages import profile_stages
 from collision_node.broadphase import NAMES
 from collision_node.scenes import make_scene
@@ -277,8 +278,8 @@ class Bench:
 
     def accuracy(self):
         rows = []
-        warm = self.scene('uniform', 64)
-        accuracy_rows(warm, 2, DT, NAMES, self.plan.budget_s)
+        warm = self.scene('uniform', WARM_UP_BODIES)
+        accuracy_rows(warm, WARM_UP_TICKS, DT, NAMES, self.plan.budget_s)
         for scene_name, bodies, ticks, dt in self.plan.accuracy_scenes:
             before = time.perf_counter()
             self.progress('accuracy %s n=%d: ground truth and %d broad phases, %d ticks'
@@ -306,7 +307,8 @@ class Bench:
         if not fcl_available():
             return [{'skipped': INSTALL_HINT}]
         rows = []
-        compare_with_fcl(self.scene('uniform', 64), 2, DT, NAMES, self.limits)  # warm
+        compare_with_fcl(self.scene('uniform', WARM_UP_BODIES), WARM_UP_TICKS, DT, NAMES,
+                         self.limits)  # warm
         for bodies, ticks in self.plan.fcl_sizes:
             skipped = {}
             for name in NAMES:
@@ -355,9 +357,8 @@ class Bench:
             self.progress('%s: %s' % (label, reason))
             return dict(ids, skipped=reason)
         limits = self.limits._replace(tick_s=10 * self.plan.max_tick_s)
-        profile_stages(self.scene(scene_name, 64), 2, dt, limits, name)  # warm
-        row = self._guarded(label, profile_stages, self.scene(scene_name, bodies), ticks,
-                            dt, limits, name)
+        row = self._guarded(label, warmed, profile_stages, self.scene(scene_name, bodies),
+                            ticks, dt, limits, phase_name=name)
         if 'tick_ms' in row:
             self.slow.record(key, bodies, row['tick_ms'])
             self.progress('%s: tick %.3f ms' % (label, row['tick_ms']))
