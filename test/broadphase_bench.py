@@ -1,4 +1,4 @@
-"""Per-tick time of every broad phase through World.step, for the README's table.
+"""Per-tick time of every broad phase through World.step, and the studies the README cites.
 
     python test/broadphase_bench.py [--sizes 1000 10000 100000] [--scenes uniform ...]
     python test/broadphase_bench.py --study kd_tree   # rebuild or refit (kd_tree docstring)
