@@ -24,6 +24,7 @@ in the PoseArray (the node's worst case: every pose parsed, stepped and drawn); 
 gives the scene's static half to the node as ``static_colliders`` instead (DESIGN §5's scene).
 """
 import argparse
+import contextlib
 import itertools
 import json
 import os
@@ -48,7 +49,7 @@ from collision_node import diagnostics
 from collision_node.broadphase import NAMES
 from collision_node.cdr import ENCAPSULATION_SIZE, serialize_pose_array
 from collision_node.memory import keep_heap_memory
-from collision_node.messages import contacts_to_cloud, serialize_collisions
+from collision_node.messages import CloudWriter, contacts_to_cloud
 from collision_node.node import CollisionNode, INPUT_QOS, OUTPUT_QOS  # the node's own QoS
 from collision_node.params import scene_parameters, write_params_file
 from collision_node.scenes import uniform, UNIFORM_HALF_EXTENTS
@@ -172,6 +173,17 @@ class Client:
         self.node.destroy_node()
 
 
+@contextlib.contextmanager
+def ros_context(domain_id):
+    """Yield an initialised rclpy context of its own; shut it down on leaving."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    try:
+        yield context
+    finally:
+        context.try_shutdown()
+
+
 def start_node(params_path, domain_id, cache_dir=None):
     """Start the node's own process; its log goes to a temporary file."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
@@ -270,12 +282,10 @@ def stage_summary(statuses):
 
 def latency_section(plan, statics, broad_phase, thread_counts, domain_id, progress):
     rows = []
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    client = Client(context)
     runs = [(bodies, threads) for bodies in plan.sizes for threads in thread_counts]
-    try:
-        with tempfile.TemporaryDirectory() as directory:
+    with ros_context(domain_id) as context, tempfile.TemporaryDirectory() as directory:
+        client = Client(context)
+        try:
             for run, (bodies, threads) in enumerate(runs):
                 frames, static_poses, static_extents, dynamic_extents = scene_input(
                     bodies, statics)
@@ -306,9 +316,8 @@ def latency_section(plan, statics, broad_phase, thread_counts, domain_id, progre
                             raise RuntimeError(node_failure(process, log))
                 finally:
                     stop_node(process, log)
-    finally:
-        client.close()
-        context.try_shutdown()
+        finally:
+            client.close()
     return rows
 
 
@@ -324,30 +333,31 @@ def _median_ms(function, repeats):
 def output_section(plan, domain_id):
     """Cloud as a message object vs as bytes: written, and written + published."""
     rows = []
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    node = rclpy.create_node('collision_latency_output', context=context)
-    publisher = node.create_publisher(PointCloud2, 'output_probe', OUTPUT_QOS)
-    node.create_subscription(PointCloud2, 'output_probe', lambda _: None, OUTPUT_QOS,
-                             raw=True)
-    try:
-        for bodies in plan.sizes:
-            frames, _, _, extents = scene_input(bodies, statics=False)
-            contacts = World().step(frames[0], extents).contacts
-            repeats = 50 if bodies < 100000 else 10
-            cloud_bytes = serialize_collisions(contacts, 1, 2, 'world')
-            cloud = contacts_to_cloud(contacts, PointCloud2().header)
-            rows.append({
-                'bodies': bodies, 'contacts': len(contacts),
-                'bytes_write_ms': _median_ms(
-                    lambda: serialize_collisions(contacts, 1, 2, 'world'), repeats),
-                'bytes_publish_ms': _median_ms(lambda: publisher.publish(cloud_bytes), repeats),
-                'message_write_ms': _median_ms(
-                    lambda: contacts_to_cloud(contacts, PointCloud2().header), repeats),
-                'message_publish_ms': _median_ms(lambda: publisher.publish(cloud), repeats)})
-    finally:
-        node.destroy_node()
-        context.try_shutdown()
+    with ros_context(domain_id) as context:
+        node = rclpy.create_node('collision_latency_output', context=context)
+        publisher = node.create_publisher(PointCloud2, 'output_probe', OUTPUT_QOS)
+        node.create_subscription(PointCloud2, 'output_probe', lambda _: None, OUTPUT_QOS,
+                                 raw=True)
+        writer = CloudWriter()  # kept from call to call, as in the node
+        try:
+            for bodies in plan.sizes:
+                frames, _, _, extents = scene_input(bodies, statics=False)
+                contacts = World().step(frames[0], extents).contacts
+                repeats = 50 if bodies < 100000 else 10
+                cloud_bytes = writer.serialize(contacts, 1, 2, 'world')
+                cloud = contacts_to_cloud(contacts, PointCloud2().header)
+                rows.append({
+                    'bodies': bodies, 'contacts': len(contacts),
+                    'bytes_write_ms': _median_ms(
+                        lambda: writer.serialize(contacts, 1, 2, 'world'), repeats),
+                    'bytes_publish_ms': _median_ms(
+                        lambda: publisher.publish(cloud_bytes), repeats),
+                    'message_write_ms': _median_ms(
+                        lambda: contacts_to_cloud(contacts, PointCloud2().header), repeats),
+                    'message_publish_ms': _median_ms(
+                        lambda: publisher.publish(cloud), repeats)})
+        finally:
+            node.destroy_node()
     return rows
 
 
@@ -412,17 +422,13 @@ def tick_ms(context, case, ticks):
 
 def skips_section(plan, domain_id):
     rows = []
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    try:
+    with ros_context(domain_id) as context:
         for what, needed, skipped in skip_cases(plan.skip_bodies):
             rows.append({'what': what,
                          'needed': needed.name, 'needed_ms': tick_ms(context, needed, SKIP_TICKS),
                          'skipped': skipped.name,
                          'skipped_ms': tick_ms(context, skipped, SKIP_TICKS)})
-        rows.append(diagnostics_cost())
-    finally:
-        context.try_shutdown()
+    rows.append(diagnostics_cost())
     return rows
 
 
@@ -473,13 +479,11 @@ def sphere_section(plan):
 def startup_section(domain_id):
     """Process start → first answer, with an empty numba cache and then with it filled."""
     rows = []
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    client = Client(context)
     frames, *_, extents = scene_input(1000, statics=False)
     frame = serialize_pose_array(0, 0, 'world', frames[0])
-    try:
-        with tempfile.TemporaryDirectory() as directory:
+    with ros_context(domain_id) as context, tempfile.TemporaryDirectory() as directory:
+        client = Client(context)
+        try:
             params_path = os.path.join(directory, 'params.yaml')
             write_params_file(params_path, node_parameters(np.zeros((0, 7)), np.zeros((0, 3)),
                                                            extents))
@@ -493,9 +497,8 @@ def startup_section(domain_id):
                 finally:
                     stop_node(process, log)
                 rows.append({'cache': cache_state, 'ready_s': ready_s})
-    finally:
-        client.close()
-        context.try_shutdown()
+        finally:
+            client.close()
     return rows
 
 
