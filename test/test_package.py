@@ -133,3 +133,15 @@ def test_test_imports_are_test_dependencies(manifest, distribution):
         if ROSDEP_KEYS.get(name, name) not in declared and PIP_NAMES.get(name) not in extras
         and name != 'setuptools']  # setup.py's own dependency, used here to read it
     assert not missing, 'add to package.xml <test_depend> (or setup.py extras): %s' % missing
+
+
+def test_ci_runs_the_readme_test_command():
+    """CI (.ci/run) sets up its own venv and runs exactly the test command the README gives."""
+    with open(os.path.join(REPO, 'README.md')) as readme:
+        text = readme.read()
+    command = 'bash .ci/setup-venv && .venv/bin/python -m pytest -q'
+    assert '\n%s\n' % command in text
+    with open(os.path.join(REPO, '.ci', 'run')) as run:
+        steps = [line for line in run.read().splitlines()
+                 if line and not line.startswith('#') and not line.startswith(('set ', 'cd '))]
+    assert ' && '.join(steps) == command
