@@ -64,8 +64,9 @@ COLLIDER_PARAMETERS = {  # <name>.<key>; pose and half_extents have no default: 
 # A collider name becomes the first part of parameter names, so it must be a plain identifier
 # and must not collide with the node's own parameter groups.
 COLLIDER_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
-RESERVED_NAMES = frozenset(name.split('.')[0] for name in PARAMETERS) | {
-    'qos_overrides', 'use_sim_time', 'start_type_description_service'}
+RCLPY_PARAMETER_GROUPS = frozenset({'qos_overrides', 'use_sim_time',
+                                    'start_type_description_service'})
+RESERVED_NAMES = frozenset(name.split('.')[0] for name in PARAMETERS) | RCLPY_PARAMETER_GROUPS
 MAX_THREADS = 64  # far more than a collision check can use; a larger value is a typo
 # Above this a timer mostly wakes the executor to find no new input; a faster pose source is
 # better served by tick_rate_hz 0 (a tick on every input).
@@ -240,7 +241,26 @@ def declare(node):
         for key, spec in COLLIDER_PARAMETERS.items():
             name = '%s.%s' % (collider, key)
             values[name] = declare_one(name, spec)
+    # rclpy keeps the values of the params files and overrides in this attribute; a name the
+    # node never declares stays there unread.
+    unknown = unknown_parameters(getattr(node, '_parameter_overrides', {}), names)
+    if unknown:
+        node.get_logger().warn(
+            'ignored %d parameter(s) collision_node does not have (a typo, or a collider '
+            'missing from static_colliders?): %s' % (len(unknown), reprlib.repr(unknown)))
     return parse(values)
+
+
+def unknown_parameters(given, collider_names):
+    """Return the names in ``given`` that the node does not read, sorted.
+
+    A misspelt name would otherwise leave its parameter at the default without a word (e.g.
+    ``dynamic.half_extent`` and every body 1 m wide). Names rclpy reads itself are known.
+    """
+    known = set(PARAMETERS) | {'%s.%s' % (collider, key) for collider in collider_names
+                               for key in COLLIDER_PARAMETERS}
+    return sorted(name for name in given if name not in known
+                  and name.split('.')[0] not in RCLPY_PARAMETER_GROUPS)
 
 
 def scene_parameters(static_poses, static_half_extents, dynamic_half_extents, **values):

@@ -110,6 +110,16 @@ def test_bad_parameter_is_named(case):
     assert words in str(raised.value)
 
 
+def test_unknown_parameters_are_the_names_no_one_reads():
+    given = ['frame_id', 'dynamic.half_extent', 'table.pose', 'tabel.pose', 'shelf.enabled',
+             'qos_overrides./dynamic_poses.subscription.depth', 'use_sim_time',
+             'octree.max_depth', 'octree.maxdepth']
+    assert params.unknown_parameters(given, ['table', 'shelf']) == [
+        'dynamic.half_extent', 'octree.maxdepth', 'tabel.pose']
+    assert params.unknown_parameters(given, []) == [
+        'dynamic.half_extent', 'octree.maxdepth', 'shelf.enabled', 'tabel.pose', 'table.pose']
+
+
 def test_run_time_changes():
     parsed = params.parse(GOOD)
     changed = params.run_time_change(parsed, 'shelf.enabled', True)
@@ -222,6 +232,21 @@ def test_bad_params_file_stops_the_node(context, tmp_path, name):
     if name == 'input_timeout_s':
         assert str(raised.value) == ("parameter 'input_timeout_s': must be of type double "
                                      '(write 1.0, not 1), got integer')
+
+
+def test_misspelt_parameter_is_warned_at_start(context, capfd):
+    import rclpy
+    from rclpy.parameter import Parameter
+    from collision_node.node import CollisionNode
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    node = CollisionNode(context=context, parameter_overrides=[
+        Parameter('dynamic.half_extent', value=[0.1, 0.1, 0.1])])
+    try:
+        assert list(node.get_parameter('dynamic.half_extents').value) == [0.5, 0.5, 0.5]
+    finally:
+        node.destroy_node()
+    log = capfd.readouterr().err
+    assert 'ignored 1 parameter(s)' in log and "'dynamic.half_extent'" in log
 
 
 def test_bad_overrides_stop_the_node(context):
