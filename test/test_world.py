@@ -3,8 +3,10 @@ import numpy as np
 import pytest
 
 from collision_node import CONTACT_DTYPE, DYNAMIC, STATIC, World
+from collision_node.broadphase import NAMES
 from collision_node.obb import QUATERNION_NORM_TOLERANCE
 from collision_node.scenes import uniform
+from collision_node.world import _z_order, MAX_COORDINATE, Z_ORDER_BITS, Z_ORDER_MIN_TICKS
 
 IDENTITY = [0.0, 0.0, 0.0, 1.0]
 
@@ -107,6 +109,63 @@ def test_dynamic_count_may_change_every_tick():
         poses = np.array([pose(0.5 + 3.0 * i) for i in range(n)]).reshape(-1, 7)
         result = world.step(poses, [0.5, 0.5, 0.5])
         assert contact_keys(result.contacts) == ([(0, STATIC, 0)] if n else [])
+
+
+def naive_z_order(points):
+    """Sort the indices of ``points`` by interleaved cell bits, ties by index (plain Python)."""
+    if not len(points):
+        return []
+    clamped = [[0.0 if np.isnan(x) else min(max(float(x), -MAX_COORDINATE), MAX_COORDINATE)
+                for x in point] for point in points]
+    low = [min(point[k] for point in clamped) for k in range(3)]
+    high = [max(point[k] for point in clamped) for k in range(3)]
+    span = [max(high[k] - low[k], np.finfo(float).tiny) for k in range(3)]
+
+    def key(i):
+        cells = [int((clamped[i][k] - low[k]) / span[k] * ((1 << Z_ORDER_BITS) - 1))
+                 for k in range(3)]
+        return sum(((cells[k] >> bit) & 1) << (3 * bit + k)
+                   for bit in range(Z_ORDER_BITS) for k in range(3))
+    return sorted(range(len(points)), key=lambda i: (key(i), i))
+
+
+def test_z_order_matches_a_naive_reference():
+    rng = np.random.default_rng(8)
+    points = rng.uniform(-5.0, 5.0, (400, 3))
+    points[10:20] = points[0]  # ties keep their input order
+    points[30] = np.nan
+    points[31, 1] = np.inf
+    points[32, 2] = -1e300
+    for part in (points[:0], points[:1], points[:29], points):
+        assert _z_order(part).tolist() == naive_z_order(part)
+
+
+@pytest.mark.parametrize('phase', NAMES)
+def test_rows_are_sorted_again_once_the_bodies_travel(phase):
+    """Sort the rows again after far travel, at most every Z_ORDER_MIN_TICKS ticks.
+
+    No bit of a result changes, in every broad phase.
+    """
+    scene = uniform(300, seed=4)
+    world = World(broad_phase=phase)
+    world.set_static(scene.static_poses, scene.static_half_extents)
+    rows = []
+    for tick in range(3 * Z_ORDER_MIN_TICKS):
+        poses = scene.dynamic_poses(0.01 * tick)
+        if tick >= Z_ORDER_MIN_TICKS:  # then the bodies travel 3 m every tick
+            poses[:, 0] += 3.0 * (tick - Z_ORDER_MIN_TICKS + 1)
+        result = world.step(poses, scene.dynamic_half_extents)
+        rows.append(world._dynamic_ids.copy())
+        if tick % 7 == 0 or tick in (Z_ORDER_MIN_TICKS, 2 * Z_ORDER_MIN_TICKS):
+            fresh = World(broad_phase='brute_force')
+            fresh.set_static(scene.static_poses, scene.static_half_extents)
+            assert np.array_equal(result.contacts,
+                                  fresh.step(poses, scene.dynamic_half_extents).contacts)
+    sorts = [tick for tick in range(1, len(rows)) if not np.array_equal(rows[tick],
+                                                                        rows[tick - 1])]
+    # Slow motion never re-sorts; far travel re-sorts at the first chance and then once every
+    # Z_ORDER_MIN_TICKS ticks.
+    assert sorts == [Z_ORDER_MIN_TICKS, 2 * Z_ORDER_MIN_TICKS]
 
 
 @pytest.mark.parametrize('bad, reason', [
