@@ -83,6 +83,39 @@ def degenerate_scene():
     return still(static, static_extents, dynamic, dynamic_extents)
 
 
+def drifting(static_poses, static_extents, dynamic_poses, dynamic_extents, step):
+    """Make a scene whose dynamic boxes all move by ``step`` (3,) a tick."""
+    def dynamic(tick):
+        moved = np.array(dynamic_poses, float)
+        moved[:, :3] += tick * np.asarray(step)
+        return moved, np.asarray(dynamic_extents, float)
+
+    return Scene(static_poses, static_extents, dynamic)
+
+
+def needles_scene(n=300, seed=6):
+    """Long thin boxes at random angles: AABBs far larger than the boxes, most pairs apart."""
+    rng = np.random.default_rng(seed)
+    all_poses = poses(rng.uniform(0.0, 6.0, (n, 3)), random_quaternions(rng, n))
+    extents = np.tile([1.5, 0.02, 0.02], (n, 1))
+    half = n // 2
+    return drifting(all_poses[:half], extents[:half], all_poses[half:], extents[half:],
+                    [0.05, 0.0, 0.0])
+
+
+def planar_scene(n=400, seed=7):
+    """Make a mobile robot's world: boxes on one floor, turned about z only, at one height."""
+    rng = np.random.default_rng(seed)
+    position = np.column_stack([rng.uniform(0.0, 12.0, (n, 2)), np.full(n, 0.25)])
+    yaw = rng.uniform(-np.pi, np.pi, n)
+    quaternion = np.column_stack([np.zeros((n, 2)), np.sin(yaw / 2), np.cos(yaw / 2)])
+    extents = np.column_stack([rng.uniform(0.1, 0.4, (n, 2)), np.full(n, 0.25)])
+    half = n // 2
+    all_poses = poses(position, quaternion)
+    return drifting(all_poses[:half], extents[:half], all_poses[half:], extents[half:],
+                    [0.03, 0.02, 0.0])
+
+
 SCENES = {
     'uniform': lambda: uniform(600),
     'clustered': lambda: uniform(600, clustered=True),
@@ -97,6 +130,8 @@ SCENES = {
     'big_boxes': big_boxes_scene,
     'touching': touching_scene,
     'degenerate': degenerate_scene,
+    'needles': needles_scene,
+    'planar': planar_scene,
 }
 
 
@@ -172,7 +207,8 @@ def test_candidates_are_exactly_the_overlapping_pairs(name, scene_name):
 def test_scenes_really_collide():
     """Guard against vacuous differential tests: the scenes have many contacts."""
     for scene_name, least in [('uniform', 100), ('clustered', 300), ('touching', 100),
-                              ('one_point', 1000), ('big_boxes', 100), ('degenerate', 3)]:
+                              ('one_point', 1000), ('big_boxes', 100), ('degenerate', 3),
+                              ('needles', 50), ('planar', 200)]:
         (_, results), = run_worlds(SCENES[scene_name](), ['brute_force'], [1])
         assert len(results['brute_force'].contacts) >= least, scene_name
 
