@@ -3,7 +3,7 @@
     collision_latency --quick --json latency.json     # under 2 minutes
     collision_latency --json latency.json             # 100 ... 100,000 bodies at 10, 100, 1,000 Hz
 
-Prints markdown tables; ``--json`` writes every number. Four sections:
+Prints markdown tables; ``--json`` writes every number. Six sections:
 
 * latency: the node runs as its own process (``python -m collision_node.node``, the console
   script's code, default parameters but the scene's sizes); this process publishes pre-serialised
@@ -14,9 +14,14 @@ Prints markdown tables; ``--json`` writes every number. Four sections:
   markers) written as CDR bytes, ``publish`` handing them to rclpy; the node's overhead is
   parse + output + publish over the total. Inputs the node had no
   time for are dropped (depth-1 input queue), so at high rates not every input is answered.
+* floor: the same inputs answered by an echo node (:func:`run_echo`, its own process) that
+  publishes the node's cloud for the scene at once: what ROS itself costs both ways (DDS,
+  the two executors, taking and publishing the bytes). The node's latency minus this floor is
+  what the node adds.
 * output: message object vs pre-serialised bytes for the cloud, written and published, here.
 * skips: what a scene does not need, each against the case that needs it, through
   ``CollisionNode._check`` (the node's whole tick without the transport), in this process.
+* sphere: the World's narrow phase with and without the bounding-sphere prefilter, here.
 * startup: node process start → first answer, with a fresh numba cache (cold) and again (warm).
 
 Scene: ``scenes.uniform(N)`` (about one colliding pair per body); by default all N bodies come
@@ -41,7 +46,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 import numpy as np
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 
@@ -69,6 +74,7 @@ READY_TIMEOUT_S = 300.0
 SKIP_TICKS = 30        # timed ticks per case of the skips section
 STAMP_OFFSET = ENCAPSULATION_SIZE  # the stamp (int32 sec, uint32 nanosec) follows the header
 NODE_STOP_TIMEOUT_S = 10.0
+SECTIONS = ('latency', 'floor', 'output', 'skips', 'sphere', 'startup')
 
 
 class Plan(NamedTuple):
@@ -184,16 +190,44 @@ def ros_context(domain_id):
         context.try_shutdown()
 
 
-def start_node(params_path, domain_id, cache_dir=None):
-    """Start the node's own process; its log goes to a temporary file."""
+def start_node(params_path, domain_id, cache_dir=None, command=None):
+    """Start the node's own process (or ``command``, e.g. the echo); its log goes to a file."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
     if cache_dir is not None:
         env['NUMBA_CACHE_DIR'] = cache_dir
     log = tempfile.TemporaryFile('w+')
-    process = subprocess.Popen(
-        [sys.executable, '-m', 'collision_node.node', '--ros-args', '--params-file',
-         params_path], env=env, stdout=log, stderr=subprocess.STDOUT)
+    if command is None:
+        command = [sys.executable, '-m', 'collision_node.node', '--ros-args', '--params-file',
+                   params_path]
+    process = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
     return process, log
+
+
+def run_echo(cloud_path):
+    """Answer every PoseArray at once with the cloud in ``cloud_path``, its stamp copied.
+
+    The floor section's stand-in for the node: the same messages both ways through the same
+    QoS and executor, and no collision work, so its latency is what ROS itself costs.
+    """
+    keep_heap_memory()
+    with open(cloud_path, 'rb') as source:
+        cloud = bytearray(source.read())
+    rclpy.init()
+    node = rclpy.create_node('collision_echo')
+    publisher = node.create_publisher(PointCloud2, 'collisions', OUTPUT_QOS)
+
+    def answer(data):
+        cloud[STAMP_OFFSET:STAMP_OFFSET + 8] = data[STAMP_OFFSET:STAMP_OFFSET + 8]
+        publisher.publish(bytes(cloud))
+
+    node.create_subscription(PoseArray, 'dynamic_poses', answer, INPUT_QOS, raw=True)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
 
 
 def stop_node(process, log):
@@ -281,37 +315,66 @@ def stage_summary(statuses):
 
 
 def latency_section(plan, statics, broad_phase, thread_counts, domain_id, progress):
-    rows = []
+    """Time the node, one process per size and thread count."""
+    def start(run, directory, bodies, threads, scene):
+        _, static_poses, static_extents, dynamic_extents = scene
+        params_path = os.path.join(directory, 'params_%d.yaml' % run)
+        write_params_file(params_path, node_parameters(
+            static_poses, static_extents, dynamic_extents, broad_phase, threads))
+        return start_node(params_path, domain_id)
+
     runs = [(bodies, threads) for bodies in plan.sizes for threads in thread_counts]
+    return _answered_runs(plan, runs, statics, domain_id, progress, start)
+
+
+def floor_section(plan, statics, domain_id, progress):
+    """Time the echo (:func:`run_echo`) on the node's messages: what ROS costs, per size."""
+    def start(run, directory, bodies, threads, scene):
+        frames, static_poses, static_extents, dynamic_extents = scene
+        world = World()
+        world.set_static(static_poses, static_extents)
+        contacts = world.step(frames[0], dynamic_extents).contacts
+        cloud_path = os.path.join(directory, 'cloud_%d.bin' % run)
+        with open(cloud_path, 'wb') as out:
+            out.write(bytes(CloudWriter().serialize(contacts, 0, 0, 'world')))
+        return start_node(None, domain_id, command=[
+            sys.executable, '-m', 'collision_node.latency_bench', '--echo', cloud_path])
+
+    return _answered_runs(plan, [(bodies, None) for bodies in plan.sizes], statics, domain_id,
+                          progress, start)
+
+
+def _answered_runs(plan, runs, statics, domain_id, progress, start):
+    """Publish each run's scene at every rate to the process ``start`` starts; its rows.
+
+    ``runs`` are (bodies, threads or None); ``start(run, directory, bodies, threads, scene)``
+    starts the answering process and returns (process, log).
+    """
+    rows = []
     with ros_context(domain_id) as context, tempfile.TemporaryDirectory() as directory:
         client = Client(context)
         try:
             for run, (bodies, threads) in enumerate(runs):
-                frames, static_poses, static_extents, dynamic_extents = scene_input(
-                    bodies, statics)
-                frames = [serialize_pose_array(0, 0, 'world', poses) for poses in frames]
-                params_path = os.path.join(directory, 'params_%d.yaml' % run)
-                write_params_file(params_path, node_parameters(
-                    static_poses, static_extents, dynamic_extents, broad_phase, threads))
+                scene = scene_input(bodies, statics)
+                frames = [serialize_pose_array(0, 0, 'world', poses) for poses in scene[0]]
+                who = 'echo' if threads is None else '%d thread(s)' % threads
                 started = time.perf_counter()
-                process, log = start_node(params_path, domain_id)
+                process, log = start(run, directory, bodies, threads, scene)
                 try:
                     base = 1000 * (run + 1)
                     ready_s = wait_ready(client, process, log, frames[0], base, started)
                     settle(client, frames, base + 1)
-                    progress('%d bodies, %d thread(s): node ready after %.2f s'
-                             % (bodies, threads, ready_s))
+                    progress('%d bodies, %s: ready after %.2f s' % (bodies, who, ready_s))
                     for k, rate in enumerate(plan.rates):
                         time.sleep(DIAGNOSTIC_PERIOD_S + 0.1)  # no period spans two runs
                         row = run_rate(client, frames, rate, plan, base + 2 + k)
-                        row.update(bodies=bodies, poses=bodies - len(static_poses),
-                                   statics=len(static_poses), threads=threads,
+                        row.update(bodies=bodies, poses=bodies - len(scene[1]),
+                                   statics=len(scene[1]), threads=threads,
                                    ready_s=ready_s, message_bytes=len(frames[0]))
                         rows.append(row)
-                        progress('%d bodies, %d thread(s) at %g Hz: median %s ms, %d of %d '
-                                 'answered' % (bodies, threads, rate,
-                                               _fmt(row['latency_ms_median']),
-                                               row['answered'], row['sent']))
+                        progress('%d bodies, %s at %g Hz: median %s ms, %d of %d answered'
+                                 % (bodies, who, rate, _fmt(row['latency_ms_median']),
+                                    row['answered'], row['sent']))
                         if process.poll() is not None:
                             raise RuntimeError(node_failure(process, log))
                 finally:
@@ -542,6 +605,9 @@ def markdown(results):
         out += ['', 'Node ready (process start → first answer, warm cache): ' + ', '.join(
             '%d bodies (%d thread(s)) %.2f s' % item for item in ready), '']
     for title, key, columns in (
+            ('Floor: the same messages answered at once by an echo node (ms)', 'floor',
+             ('bodies', 'poses', 'statics', 'rate_hz', 'answered', 'latency_ms_median',
+              'latency_ms_p99', 'latency_ms_max')),
             ('Output: the cloud as bytes vs as a message object (ms)', 'output',
              ('bodies', 'contacts', 'bytes_write_ms', 'bytes_publish_ms', 'message_write_ms',
               'message_publish_ms')),
@@ -554,7 +620,9 @@ def markdown(results):
         if results.get(key):
             out += ['## ' + title, '', '| ' + ' | '.join(columns) + ' |',
                     '|' + '---|' * len(columns)]
-            out += ['| ' + ' | '.join(_fmt(r[c]) for c in columns) + ' |'
+            out += ['| ' + ' | '.join(_fmt(r[c] if c != 'answered' else
+                                           '%d/%d' % (r['answered'], r['sent']))
+                                      for c in columns) + ' |'
                     for r in results[key]]
             out.append('')
     return '\n'.join(out)
@@ -575,10 +643,10 @@ def parse_arguments(argv):
                         help="the node's threads parameter; each count is a run (default: 1)")
     parser.add_argument('--sizes', type=int, nargs='+', metavar='N', help='body counts')
     parser.add_argument('--rates', type=float, nargs='+', metavar='HZ', help='input rates')
-    parser.add_argument('--sections', nargs='+', default=['latency', 'output', 'skips',
-                                                          'sphere', 'startup'],
-                        choices=['latency', 'output', 'skips', 'sphere', 'startup'])
+    parser.add_argument('--sections', nargs='+', default=list(SECTIONS), choices=SECTIONS)
     parser.add_argument('--json', metavar='FILE', help='write every number here')
+    parser.add_argument('--echo', metavar='CLOUD_FILE',
+                        help="run as the floor section's echo node, answering with this cloud")
     parser.add_argument('--domain-id', type=int, default=100 + os.getpid() % 100,
                         help='ROS_DOMAIN_ID of the node and this process')
     options = parser.parse_args(argv)
@@ -598,6 +666,9 @@ def main(args=None):
     """Run the sections asked for; print the tables; write JSON if asked."""
     argv = sys.argv[1:] if args is None else args
     options, plan = parse_arguments(argv)
+    if options.echo:
+        run_echo(options.echo)
+        return 0
     keep_heap_memory()  # as the node does: receiving large clouds costs no page faults
     start = time.perf_counter()
 
@@ -614,6 +685,8 @@ def main(args=None):
     if 'latency' in sections:
         results['latency'] = latency_section(plan, options.statics, options.broad_phase,
                                              options.threads, options.domain_id, progress)
+    if 'floor' in sections:
+        results['floor'] = floor_section(plan, options.statics, options.domain_id, progress)
     if 'output' in sections:
         results['output'] = output_section(plan, options.domain_id)
         progress('output done')

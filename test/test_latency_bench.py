@@ -30,7 +30,8 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
         [sys.executable, '-m', 'collision_node.latency_bench', '--tiny', '--json', str(path),
          '--domain-id', str(DOMAIN_ID)], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
-    for title in ('PoseArray in → collisions out', 'Output:', 'Skip what a scene', 'Sphere'):
+    for title in ('PoseArray in → collisions out', 'Floor:', 'Output:', 'Skip what a scene',
+                  'Sphere'):
         assert title in done.stdout
     results = json.loads(path.read_text())
     row, = results['latency']
@@ -41,6 +42,12 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
     assert row['dynamic_bodies'] == '100' and row['static_bodies'] == '0'
     for stage in ('parse', 'broad', 'narrow', 'output', 'publish'):
         assert 0.0 <= row[stage + '_ms_median'] <= row['total_ms_max']
+    # The echo answered the same inputs, and reports no stages.
+    floor, = results['floor']
+    assert (floor['bodies'], floor['rate_hz'], floor['threads']) == (100, 20, None)
+    assert 0 < floor['answered'] <= floor['sent'] == 20
+    assert 0 < floor['latency_ms_median'] <= floor['latency_ms_p99'] <= floor['latency_ms_max']
+    assert floor['total_ms_median'] is None
     assert [r['what'].split(':')[0] for r in results['skips']] == [
         'no dynamic bodies', 'identical input', 'static colliders', 'disabled colliders',
         'diagnostics']
