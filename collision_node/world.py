@@ -206,8 +206,13 @@ class World:
         """Whether the sampled bodies moved far, on average, since the rows were sorted."""
         if self._ticks_since_sort < Z_ORDER_MIN_TICKS or not len(self._sampled):
             return False
+        if half_extents.shape == (3,):
+            extents = half_extents
+        elif half_extents.shape == (len(poses), 3):
+            extents = half_extents[self._sampled]
+        else:  # set_boxes refuses the shape, naming it
+            return False
         travel = np.linalg.norm(poses[self._sampled, :3] - self._sampled_at, axis=1)
-        extents = half_extents[self._sampled] if half_extents.ndim == 2 else half_extents
         radius = np.linalg.norm(extents, axis=-1)
         # NaN or Inf (input the boxes then refuse) compares False: no sort.
         return bool(np.mean(travel) > Z_ORDER_STALE_RADII * np.mean(radius))

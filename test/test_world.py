@@ -168,6 +168,19 @@ def test_rows_are_sorted_again_once_the_bodies_travel(phase):
     assert sorts == [Z_ORDER_MIN_TICKS, 2 * Z_ORDER_MIN_TICKS]
 
 
+def test_a_bad_extents_shape_is_refused_when_the_rows_could_be_sorted():
+    scene = uniform(40, seed=5)
+    world = World(broad_phase='grid')
+    poses = scene.dynamic_poses(0.0)
+    for tick in range(Z_ORDER_MIN_TICKS):
+        world.step(scene.dynamic_poses(0.01 * tick), scene.dynamic_half_extents)
+    far = poses.copy()
+    far[:, 0] += 100.0
+    with pytest.raises(ValueError, match='half extents must have shape'):
+        world.step(far, scene.dynamic_half_extents[:-1])
+    assert len(world.step(far, scene.dynamic_half_extents).contacts) > 0
+
+
 @pytest.mark.parametrize('bad, reason', [
     (pose(np.nan), 'NaN or Inf'),
     (pose(0.0, np.inf), 'NaN or Inf'),
