@@ -46,6 +46,34 @@ def assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, 
     return contacts
 
 
+def merge_contacts(first, second):
+    """Return the rows of two sorted CONTACT_DTYPE arrays (no pair in both), sorted."""
+    out = np.empty(len(first) + len(second), CONTACT_DTYPE)
+    _merge(first, second, out)
+    return out
+
+
+@kernel
+def _merge(first, second, out):
+    i = 0
+    j = 0
+    for k in range(len(out)):
+        if j == len(second) or (i < len(first) and _sorts_before(first, i, second, j)):
+            out[k] = first[i]
+            i += 1
+        else:
+            out[k] = second[j]
+            j += 1
+
+
+@kernel
+def _sorts_before(x, i, y, j):
+    """Whether row ``i`` of ``x`` comes before row ``j`` of ``y`` by (id_a, type_b, id_b)."""
+    if x[i].id_a != y[j].id_a:
+        return x[i].id_a < y[j].id_a
+    return _rank_b(x, i) < _rank_b(y, j)
+
+
 @kernel
 def orient_pairs(pairs, n_static, dynamic_ids):
     """Swap the dynamic pairs whose second body has the smaller id, in place.

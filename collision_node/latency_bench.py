@@ -459,6 +459,13 @@ def skip_cases(bodies):
                   cdr(all_moving)),
          SkipCase('same poses again', node_parameters(statics[:0], static_extents[:0], extents),
                   cdr(all_moving[:1]))),
+        ('bodies at rest: %d dynamic bodies, %d of them moving' % (len(extents), few),
+         SkipCase('all moving', node_parameters(statics[:0], static_extents[:0], extents),
+                  cdr(all_moving)),
+         SkipCase('the rest keep their poses',
+                  node_parameters(statics[:0], static_extents[:0], extents),
+                  cdr([np.concatenate([poses[:few], all_moving[0][few:]])
+                       for poses in all_moving]))),
         ('static colliders: %d statics, %d dynamic' % (len(statics), few),
          SkipCase('statics sent as dynamic poses', as_dynamic,
                   cdr([np.concatenate([statics, poses]) for poses in moving])),

@@ -101,7 +101,9 @@ class CollisionNode(Node):
         start = time.perf_counter()
         warm_up()
         self._cloud_writer = CloudWriter()
-        self._cloud_writer.serialize(np.zeros(1, CONTACT_DTYPE), 0, 0, '')  # its kernel too
+        warm_contacts = np.zeros(1, CONTACT_DTYPE)
+        warm_contacts.flags.writeable = False  # as World.step returns them
+        self._cloud_writer.serialize(warm_contacts, 0, 0, '')  # its kernel too
         self.get_logger().info('JIT warm-up of %d broad phases took %.2f s'
                                % (len(NAMES), time.perf_counter() - start))
 

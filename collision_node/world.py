@@ -26,8 +26,8 @@ import numpy as np
 
 from collision_node._jit import kernel
 from collision_node.broadphase import make_broad_phase, NAMES, Settings
-from collision_node.contacts import (  # noqa: F401 (DYNAMIC, STATIC re-exported)
-    assemble_contacts, CONTACT_DTYPE, DYNAMIC, orient_pairs, STATIC)
+from collision_node.contacts import (  # noqa: F401 (DYNAMIC re-exported)
+    assemble_contacts, CONTACT_DTYPE, DYNAMIC, merge_contacts, orient_pairs, STATIC)
 from collision_node.obb import Boxes, MAX_COORDINATE, set_boxes
 from collision_node.sat import collide_pairs, empty_output, INVALID
 from collision_node.scenes import uniform
@@ -142,14 +142,18 @@ class World:
         """Collide the dynamic boxes (poses (D, 7), half extents (D, 3) or (3,)).
 
         Raises ValueError naming the first invalid dynamic body; then nothing is reported.
-        An input identical to the previous one returns the previous result again.
+        An input identical to the previous one returns the previous result again; pairs of
+        bodies that kept their pose and size since the previous step keep their contacts
+        without a SAT. The result's contacts are read-only: later steps reuse them.
         """
         start = time.perf_counter()
         poses = np.require(poses, np.float64, ['C', 'A', 'W']).reshape(-1, 7)
         half_extents = np.asarray(half_extents, dtype=np.float64)
-        if self._last is not None and _same(self._last[0], poses) \
-                and _same(self._last[1], half_extents):
+        moved = self._moved_bodies(poses, half_extents)
+        if moved is not None and not moved.any():
             return self._last[2]._replace(stats=dict(self._last[2].stats, reused=True))
+        if moved is not None and moved.all():
+            moved = None  # nothing to keep: the plain path
         n_dynamic = len(poses)
         n_static = self._n_static
         if n_static + n_dynamic > self._boxes.capacity:
@@ -164,6 +168,7 @@ class World:
         stats = {'broad_phase': self._phase.name, 'dynamic_bodies': n_dynamic,
                  'static_bodies': n_static, 'compared': 0, 'candidate_pairs': 0,
                  'sat_tests': 0, 'colliding_pairs': 0, 'reused': False,
+                 'still_bodies': 0 if moved is None else int(n_dynamic - moved.sum()),
                  'broad_phase_stats': {}}
         if n_dynamic == 0:  # nothing moves: nothing to pair
             contacts = np.zeros(0, CONTACT_DTYPE)
@@ -173,21 +178,60 @@ class World:
             stats['broad_phase'] = self._phase.name
             stats['broad_phase_stats'] = dict(self._phase.stats)
             broad_done = time.perf_counter()
+            candidates = len(pairs)
             orient_pairs(pairs, n_static, self._dynamic_ids)
+            if moved is not None:  # the other pairs' contacts are those of the last step
+                pairs = pairs[:_front_pairs_with_a_moved_body(pairs, n_static, self._dynamic_ids,
+                                                              moved)]
             status, depth, normal, point, sat_tests = self._collide(pairs)
             if np.any(status == INVALID):  # bounded, finite input cannot get here; never guess
                 raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
             contacts = assemble_contacts(pairs, status, depth, normal, point, n_static,
                                          n_dynamic, self._static_ids, self._dynamic_ids)
+            if moved is not None:
+                contacts = merge_contacts(self._contacts_of_still_bodies(moved), contacts)
             narrow_done = time.perf_counter()
-            stats.update(compared=int(compared), candidate_pairs=len(pairs),
+            stats.update(compared=int(compared), candidate_pairs=candidates,
                          sat_tests=int(sat_tests), colliding_pairs=len(contacts))
         stats.update(prepare_ms=1e3 * (prepared - start), broad_ms=1e3 * (broad_done - prepared),
                      narrow_ms=1e3 * (narrow_done - broad_done),
                      total_ms=1e3 * (time.perf_counter() - start))
+        contacts.flags.writeable = False
         result = Result(contacts, stats)
         self._last = (poses.copy(), half_extents.copy(), result)
         return result
+
+    def _moved_bodies(self, poses, half_extents):
+        """Return which bodies changed pose or size since the last step, bool (D,).
+
+        None when there is nothing to compare with: no last step (or the World changed since:
+        static boxes, broad phase, prefilter), another body count, or another size for all.
+        NaN differs from everything, so a body with a NaN always counts as moved.
+        """
+        if self._last is None:
+            return None
+        last_poses, last_extents, _ = self._last
+        if last_poses.shape != poses.shape or last_extents.shape != half_extents.shape:
+            return None
+        moved = np.zeros(len(poses), np.bool_)
+        _mark_changed_rows(last_poses, poses, moved)
+        if half_extents.ndim == 2:
+            _mark_changed_rows(last_extents, np.ascontiguousarray(half_extents), moved)
+        elif not np.array_equal(last_extents, half_extents):
+            return None
+        return moved
+
+    def _contacts_of_still_bodies(self, moved):
+        """Return the last step's contacts between bodies that did not move (or statics).
+
+        Their boxes are bit for bit those of the last step, so the broad phase pairs them as
+        then and the SAT would give the same bits.
+        """
+        last = self._last[2].contacts
+        still = ~moved
+        b_still = np.where(last['type_b'] == STATIC, True,
+                           still[np.minimum(last['id_b'], len(still) - 1)])
+        return last[still[last['id_a']] & b_still]
 
     def _sort_dynamic_rows(self, poses):
         """Give the dynamic bodies rows in Z-order of their positions.
@@ -236,8 +280,31 @@ class World:
         self._workers.close()
 
 
-def _same(previous, current):
-    return previous.shape == current.shape and np.array_equal(previous, current)
+@kernel
+def _mark_changed_rows(previous, current, changed):
+    """Set ``changed[i]`` where row ``i`` of ``current`` differs from ``previous``'s."""
+    for i in range(current.shape[0]):
+        k = 0
+        # A moving body differs in its first value: one comparison, not a whole row.
+        while not changed[i] and k < current.shape[1]:
+            changed[i] = not previous[i, k] == current[i, k]  # NaN is never equal: changed
+            k += 1
+
+
+@kernel
+def _front_pairs_with_a_moved_body(pairs, n_static, dynamic_ids, moved):
+    """Move the pairs with a moved dynamic body to the front of ``pairs``; return how many."""
+    count = 0
+    for k in range(pairs.shape[0]):
+        a = pairs[k, 0]
+        b = pairs[k, 1]
+        # Without a branch, as in orient_pairs: a static b looks up a valid dummy body.
+        keep = moved[dynamic_ids[a - n_static]] | (
+            (b >= n_static) & moved[dynamic_ids[max(b - n_static, 0)]])
+        pairs[count, 0] = a
+        pairs[count, 1] = b
+        count += keep
+    return count
 
 
 def _z_order(points):
@@ -310,9 +377,18 @@ def warm_up():
             for sphere_prefilter in (True, False):
                 world.sphere_prefilter = sphere_prefilter
                 # Bodies move between steps so that update paths (bodies leaving their cell or
-                # leaf) run too; one size per body, then one size for all, one body, none.
+                # leaf) run too, and half of them only, so that still bodies keep their
+                # contacts; one size per body, then one size for all, one body, none.
                 world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents)
-                world.step(scene.dynamic_poses(0.5), scene.dynamic_half_extents)
+                world.step(_half_moved(scene, 0.5), scene.dynamic_half_extents)
                 world.step(scene.dynamic_poses(1.0), scene.dynamic_half_extents[0])
+                world.step(_half_moved(scene, 1.0), scene.dynamic_half_extents[0])
                 world.step(scene.dynamic_poses(1.5)[:1], scene.dynamic_half_extents[0])
                 world.step(np.zeros((0, 7)), scene.dynamic_half_extents[0])
+
+
+def _half_moved(scene, time_s):
+    """Return the scene's poses at ``time_s``, every other body still where it was at 0 s."""
+    poses = scene.dynamic_poses(time_s)
+    poses[::2] = scene.dynamic_poses(0.0)[::2]
+    return poses

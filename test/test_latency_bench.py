@@ -49,8 +49,8 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
     assert 0 < floor['latency_ms_median'] <= floor['latency_ms_p99'] <= floor['latency_ms_max']
     assert floor['total_ms_median'] is None
     assert [r['what'].split(':')[0] for r in results['skips']] == [
-        'no dynamic bodies', 'identical input', 'static colliders', 'disabled colliders',
-        'diagnostics']
+        'no dynamic bodies', 'identical input', 'bodies at rest', 'static colliders',
+        'disabled colliders', 'diagnostics']
     assert all(r['needed_ms'] > 0 and r['skipped_ms'] > 0 for r in results['skips'])
     for r in results['sphere']:
         assert r['sat_tests_on'] <= r['candidate_pairs']

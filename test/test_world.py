@@ -168,6 +168,43 @@ def test_rows_are_sorted_again_once_the_bodies_travel(phase):
     assert sorts == [Z_ORDER_MIN_TICKS, 2 * Z_ORDER_MIN_TICKS]
 
 
+@pytest.mark.parametrize('phase', NAMES)
+@pytest.mark.parametrize('one_size', [False, True])
+def test_still_bodies_keep_their_contacts_without_a_sat(phase, one_size):
+    """Only pairs with a moved (or resized) body reach the SAT; every result stays exact."""
+    scene = uniform(400, seed=6)
+    rng = np.random.default_rng(6)
+    world = World(broad_phase=phase)
+    world.set_static(scene.static_poses, scene.static_half_extents)
+    poses = scene.dynamic_poses(0.0)
+    extents = scene.dynamic_half_extents[0] if one_size else scene.dynamic_half_extents.copy()
+    partial = 0
+    for tick, fraction in enumerate([1.0, 0.1, 0.5, 0.0, 0.9, 0.02, 1.0, 0.3, 0.3]):
+        moving = rng.random(len(poses)) < fraction
+        poses = np.where(moving[:, None], scene.dynamic_poses(0.3 * (tick + 1)), poses)
+        if tick == 7 and not one_size:  # a new size is a change too
+            resized = rng.random(len(poses)) < 0.2
+            extents = np.where(resized[:, None], 1.2 * extents, extents)
+            moving |= resized
+        result = world.step(poses, extents)
+        reference, fresh = World(broad_phase='brute_force'), World(broad_phase=phase)
+        for world_from_scratch in (reference, fresh):
+            world_from_scratch.set_static(scene.static_poses, scene.static_half_extents)
+        assert np.array_equal(result.contacts, reference.step(poses, extents).contacts)
+        assert not result.contacts.flags.writeable
+        expected = fresh.step(poses, extents)
+        assert result.stats['candidate_pairs'] == expected.stats['candidate_pairs']
+        if tick and not moving.any():
+            assert result.stats['reused']
+        elif tick and not moving.all():
+            partial += 1
+            assert result.stats['still_bodies'] == len(poses) - moving.sum()
+            assert result.stats['sat_tests'] < expected.stats['sat_tests']
+        else:
+            assert result.stats['still_bodies'] == 0
+    assert partial >= 5
+
+
 def test_a_bad_extents_shape_is_refused_when_the_rows_could_be_sorted():
     scene = uniform(40, seed=5)
     world = World(broad_phase='grid')
