@@ -14,8 +14,8 @@ TOTAL = STAGES.index('total')
 # Ticks kept per period for the median and p99; faster ticking reports them over the newest
 # this many ticks (the max is exact over the whole period). 4096 covers 1 kHz for 4 s.
 SAMPLES_PER_PERIOD = 4096
-WORLD_KEYS = ('broad_phase', 'dynamic_bodies', 'static_bodies', 'compared', 'candidate_pairs',
-              'sat_tests', 'colliding_pairs')
+WORLD_KEYS = ('broad_phase', 'dynamic_bodies', 'static_bodies', 'still_bodies', 'compared',
+              'candidate_pairs', 'sat_tests', 'colliding_pairs')
 
 
 class Monitor:

@@ -11,10 +11,11 @@ import pytest
 from collision_node.diagnostics import ERROR, Monitor, OK, STAGES, WARN
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-WORLD_STATS = {'broad_phase': 'sphere', 'dynamic_bodies': 5, 'static_bodies': 2, 'compared': 17,
-               'candidate_pairs': 4, 'sat_tests': 3, 'colliding_pairs': 2, 'reused': False}
-REQUIRED_KEYS = ['broad_phase', 'dynamic_bodies', 'static_bodies', 'candidate_pairs',
-                 'sat_tests', 'colliding_pairs', 'compared', 'ticks', 'rate_hz',
+WORLD_STATS = {'broad_phase': 'sphere', 'dynamic_bodies': 5, 'static_bodies': 2,
+               'still_bodies': 1, 'compared': 17, 'candidate_pairs': 4, 'sat_tests': 3,
+               'colliding_pairs': 2, 'reused': False}
+REQUIRED_KEYS = ['broad_phase', 'dynamic_bodies', 'static_bodies', 'still_bodies',
+                 'candidate_pairs', 'sat_tests', 'colliding_pairs', 'compared', 'ticks', 'rate_hz',
                  'dropped_inputs', 'rejected_inputs', 'last_rejection'] + [
     '%s_ms_%s' % (stage, statistic)
     for stage in ('parse', 'broad', 'narrow', 'output', 'publish', 'total')

@@ -37,8 +37,8 @@ def test_contacts_stamp_frame_and_diagnostics(harness):
     assert status.level == DiagnosticStatus.OK, status.message
     assert status.hardware_id == 'none'
     found = values(status)
-    for key in ('broad_phase', 'dynamic_bodies', 'static_bodies', 'candidate_pairs',
-                'sat_tests', 'colliding_pairs', 'compared', 'ticks', 'rate_hz',
+    for key in ('broad_phase', 'dynamic_bodies', 'static_bodies', 'still_bodies',
+                'candidate_pairs', 'sat_tests', 'colliding_pairs', 'compared', 'ticks', 'rate_hz',
                 'dropped_inputs', 'rejected_inputs', 'last_rejection'):
         assert key in found
     for stage in ('parse', 'broad', 'narrow', 'output', 'publish', 'total'):
