@@ -171,6 +171,24 @@ def test_brute_force_world_agrees_with_fcl_on_resting_boxes():
     assert excluded == 0
 
 
+def mixed_shapes_scene(n, seed):
+    """Return needles, plates and cubes from 1 cm to 3 m across, at random angles."""
+    rng = np.random.default_rng(seed)
+    shapes = np.array([[1.0, 0.01, 0.01], [1.0, 1.0, 0.01], [1.0, 1.0, 1.0]])
+    halves = shapes[rng.integers(0, 3, n)] * rng.uniform(0.05, 1.5, (n, 1))
+    quaternions = rng.normal(size=(n, 4))
+    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
+    poses = np.concatenate([rng.uniform(0.0, 12.0, (n, 3)), quaternions], axis=1)
+    half = n // 2
+    return (poses[:half], halves[:half]), (poses[half:], halves[half:])
+
+
+def test_brute_force_world_agrees_with_fcl_on_needles_plates_and_cubes():
+    found, excluded = compare_with_fcl(*mixed_shapes_scene(2000, seed=9))
+    assert found > 5000
+    assert excluded == 0
+
+
 def test_far_from_the_origin_the_pipeline_still_agrees():
     scene = scenes.uniform(2000, seed=8)
     shift = np.array([1e6, -1e6, 1e5])
