@@ -174,7 +174,8 @@ class World:
             contacts = np.zeros(0, CONTACT_DTYPE)
             broad_done = narrow_done = prepared
         else:
-            pairs, compared = self._phase.find_pairs(self._boxes, n_static, n_dynamic)
+            moved_rows = None if moved is None else moved[self._dynamic_ids]
+            pairs, compared = self._phase.find_pairs(self._boxes, n_static, n_dynamic, moved_rows)
             stats['broad_phase'] = self._phase.name
             stats['broad_phase_stats'] = dict(self._phase.stats)
             broad_done = time.perf_counter()

@@ -193,15 +193,18 @@ def test_still_bodies_keep_their_contacts_without_a_sat(phase, one_size):
         assert np.array_equal(result.contacts, reference.step(poses, extents).contacts)
         assert not result.contacts.flags.writeable
         expected = fresh.step(poses, extents)
-        assert result.stats['candidate_pairs'] == expected.stats['candidate_pairs']
         if tick and not moving.any():
             assert result.stats['reused']
         elif tick and not moving.all():
             partial += 1
             assert result.stats['still_bodies'] == len(poses) - moving.sum()
             assert result.stats['sat_tests'] < expected.stats['sat_tests']
+            # The grid leaves out still bodies' pairs with statics; the others find them all.
+            fewer = result.stats['broad_phase'] == 'grid'
+            assert (result.stats['candidate_pairs'] < expected.stats['candidate_pairs']) == fewer
         else:
             assert result.stats['still_bodies'] == 0
+            assert result.stats['candidate_pairs'] == expected.stats['candidate_pairs']
     assert partial >= 5
 
 

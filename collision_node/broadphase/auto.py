@@ -53,7 +53,7 @@ class Auto:
         for phase in self._phases.values():
             phase.set_static(boxes, n_static)
 
-    def find_pairs(self, boxes, n_static, n_dynamic):
+    def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         wanted = self._choose(boxes.aabbs, n_static, n_dynamic, MARGIN)
         if wanted == self._wanted:
             self._wanted_for += 1
@@ -67,7 +67,7 @@ class Auto:
             self._current = wanted
             self.switches += 1
         phase = self._phase(self._current)
-        pairs = phase.find_pairs(boxes, n_static, n_dynamic)
+        pairs = phase.find_pairs(boxes, n_static, n_dynamic, moved)
         self.name = phase.name
         self.stats = dict(phase.stats, auto_switches=self.switches)
         return pairs

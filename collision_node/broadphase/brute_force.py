@@ -23,7 +23,7 @@ class BruteForce:
     def set_static(self, boxes, n_static):
         pass  # nothing to build: every tick compares against all static boxes
 
-    def find_pairs(self, boxes, n_static, n_dynamic):
+    def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         return self._buffer.fill(_all_pairs, boxes.aabbs, boxes.centers, boxes.radii,
                                  n_static, n_static + n_dynamic, self.uses_spheres)
 

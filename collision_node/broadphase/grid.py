@@ -74,13 +74,14 @@ class Grid:
         self._static_mean_side = 0.0
         self._order = np.zeros(0, np.int64)  # dynamic rows, neighbours together
         self._order_of = (0, 0)  # (n_static, n_dynamic) the order was made for
+        self._everyone = np.ones(0, np.bool_)  # find_pairs' moved when none is given
         self.stats = {'static_builds': 0}
 
     def set_static(self, boxes, n_static):
         self._static_mean_side = mean_side_and_center(boxes.aabbs, 0, n_static)[0]
         self._static_lattice = None  # built at the next tick, when dynamic sizes are known
 
-    def find_pairs(self, boxes, n_static, n_dynamic):
+    def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         aabbs = boxes.aabbs
         n_total = n_static + n_dynamic
         if self._order_of != (n_static, n_dynamic):  # bodies came or went: start afresh
@@ -103,10 +104,14 @@ class Grid:
                 self._fill_dynamic(aabbs, n_static, n_dynamic, self._static_lattice,
                                    self._static.sizes[3])
         dynamic, static = self._dynamic, self._static
+        if moved is None:
+            if len(self._everyone) < n_dynamic:
+                self._everyone = np.ones(n_dynamic, np.bool_)
+            moved = self._everyone
 
         def chunk(k, first_bucket, stop_bucket):
-            return self._buffers[k].fill(_bucket_pairs, n_static, dynamic, static, first_bucket,
-                                         stop_bucket)
+            return self._buffers[k].fill(_bucket_pairs, n_static, dynamic, static, moved,
+                                         first_bucket, stop_bucket)
 
         parts = self._workers.map_ranges(chunk, dynamic.sizes[1], MIN_BUCKETS_PER_CHUNK)
         parts.append(self._big_buffer.fill(_big_pairs, aabbs, n_static, n_total, dynamic,
@@ -151,8 +156,11 @@ def _within_ratio(a, b, ratio):
 
 
 @kernel
-def _bucket_pairs(n_static, dynamic, static, first_bucket, stop_bucket, out):
-    """Pairs of the small boxes entered in buckets ``[first_bucket, stop_bucket)``."""
+def _bucket_pairs(n_static, dynamic, static, moved, first_bucket, stop_bucket, out):
+    """Pairs of the small boxes entered in buckets ``[first_bucket, stop_bucket)``.
+
+    A dynamic box that has not ``moved`` gets no pairs with static boxes (see find_pairs).
+    """
     rows, boxes = dynamic.rows, dynamic.aabbs
     bucket_end, entry_slot = dynamic.bucket_end, dynamic.entry_slot
     entry_key, entry_first = dynamic.entry_key, dynamic.entry_first
@@ -183,7 +191,10 @@ def _bucket_pairs(n_static, dynamic, static, first_bucket, stop_bucket, out):
                 other = entry_slot[f]
                 hit = owned & _overlaps(x0, y0, z0, x1, y1, z1, boxes, other)
                 count = emit_if(out, count, hit, min(row, rows[other]), max(row, rows[other]))
-            for s in range(static_start, static_stop):
+            # A box that has not moved skips the static boxes: two thirds of the loop's steps
+            # at 10,000 bodies. When every box moved the test always passes, at no cost.
+            static_until = static_stop if moved[row - n_static] else static_start
+            for s in range(static_start, static_until):
                 owned = (static_key[s] == key) & ((first | static_first[s]) == ALL_FIRST)
                 compared += owned
                 other = static_slot[s]

@@ -87,7 +87,7 @@ class KdTreePhase:
         self._static = tree_for(np.arange(n_static))
         build(self._static, boxes.aabbs)
 
-    def find_pairs(self, boxes, n_static, n_dynamic):
+    def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         aabbs = boxes.aabbs
         tree = self._dynamic
         if self._dynamic_of != (n_static, n_dynamic):  # bodies came or went

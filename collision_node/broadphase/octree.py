@@ -201,7 +201,7 @@ class Octree:
     def set_static(self, boxes, n_static):
         self._state = None  # static boxes are inserted once, at the next build
 
-    def find_pairs(self, boxes, n_static, n_dynamic):
+    def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         aabbs = boxes.aabbs
         self._tick += 1
         if self._needs_build(aabbs, n_static, n_dynamic):

@@ -56,7 +56,7 @@ class SweepAndPrune:
                                         for k in range(3)])
         self._static_sorted = np.ascontiguousarray(aabbs[self._static_orders])
 
-    def find_pairs(self, boxes, n_static, n_dynamic):
+    def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         aabbs = boxes.aabbs
         n_total = n_static + n_dynamic
         spread = _spread(aabbs, n_static, n_total, self._static_moments)
