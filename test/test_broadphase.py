@@ -116,6 +116,19 @@ def planar_scene(n=400, seed=7):
                     [0.03, 0.02, 0.0])
 
 
+def mixed_scales_scene(n=400, seed=8):
+    """Make boxes from 1 mm to 50 m across in one scene, each side drawn on a log scale.
+
+    Cells and leaves sized from the mean size fit almost no body, and many are big boxes.
+    """
+    rng = np.random.default_rng(seed)
+    extents = np.exp(rng.uniform(np.log(5e-4), np.log(25.0), (n, 3)))
+    all_poses = poses(rng.uniform(-30.0, 30.0, (n, 3)), random_quaternions(rng, n))
+    third = n // 3
+    return drifting(all_poses[:third], extents[:third], all_poses[third:], extents[third:],
+                    [0.2, -0.1, 0.05])
+
+
 SCENES = {
     'uniform': lambda: uniform(600),
     'clustered': lambda: uniform(600, clustered=True),
@@ -132,6 +145,7 @@ SCENES = {
     'degenerate': degenerate_scene,
     'needles': needles_scene,
     'planar': planar_scene,
+    'mixed_scales': mixed_scales_scene,
 }
 
 

@@ -189,6 +189,23 @@ def test_brute_force_world_agrees_with_fcl_on_needles_plates_and_cubes():
     assert excluded == 0
 
 
+def mixed_scales_scene(n, seed):
+    """Return boxes from 1 mm to 50 m across in one scene, each side on a log scale."""
+    rng = np.random.default_rng(seed)
+    halves = np.exp(rng.uniform(np.log(5e-4), np.log(25.0), (n, 3)))
+    quaternions = rng.normal(size=(n, 4))
+    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
+    poses = np.concatenate([rng.uniform(-30.0, 30.0, (n, 3)), quaternions], axis=1)
+    third = n // 3
+    return (poses[:third], halves[:third]), (poses[third:], halves[third:])
+
+
+def test_brute_force_world_agrees_with_fcl_on_mixed_scales():
+    found, excluded = compare_with_fcl(*mixed_scales_scene(1200, seed=10))
+    assert found > 1500
+    assert excluded == 0
+
+
 def test_far_from_the_origin_the_pipeline_still_agrees():
     scene = scenes.uniform(2000, seed=8)
     shift = np.array([1e6, -1e6, 1e5])
