@@ -1,5 +1,4 @@
 """Workers: ranges cover the loop once, in order, on several threads; errors come back."""
-import os
 import threading
 import time
 
@@ -41,40 +40,6 @@ def test_chunks_run_on_several_threads():
     assert sum(workers.map_ranges(task, 800, 100)) == 800
     workers.close()
     assert len(seen) == 2
-
-
-def affinity_seen_by_each_chunk(threads):
-    """Return ({thread id: CPUs it may use}, the caller's CPUs after the run)."""
-    workers = Workers(threads)
-    seen = {}
-
-    def task(k, start, stop):
-        seen[threading.get_ident()] = frozenset(os.sched_getaffinity(0))
-        time.sleep(0.02)  # releases the GIL, as a nogil kernel does: every helper gets a chunk
-
-    workers.map_ranges(task, 100 * workers.max_chunks, 100)
-    workers.close()
-    return seen, frozenset(os.sched_getaffinity(0))
-
-
-def test_helpers_are_pinned_one_per_cpu_and_the_caller_is_left_alone():
-    allowed = frozenset(os.sched_getaffinity(0))
-    seen, caller_after = affinity_seen_by_each_chunk(2)
-    assert caller_after == allowed
-    assert threading.get_ident() not in seen  # the caller waits while the helpers work
-    if len(allowed) >= 2:
-        assert len(seen) == 2
-        assert all(len(cpus) == 1 for cpus in seen.values())
-        assert len(set(seen.values())) == 2 and set().union(*seen.values()) <= allowed
-    else:  # one CPU: nothing to spread over, nothing pinned
-        assert set(seen.values()) == {allowed}
-
-
-def test_more_threads_than_cpus_pins_nothing():
-    allowed = frozenset(os.sched_getaffinity(0))
-    seen, caller_after = affinity_seen_by_each_chunk(len(allowed) + 1)
-    assert caller_after == allowed
-    assert set(seen.values()) == {allowed}
 
 
 def test_an_error_in_a_helper_is_raised_after_every_chunk_is_done():
