@@ -171,16 +171,21 @@ def test_brute_force_world_agrees_with_fcl_on_resting_boxes():
     assert excluded == 0
 
 
+def scattered(rng, halves, low, high, n_static):
+    """Return (static, dynamic) (poses, half extents): the boxes at random in a cube."""
+    n = len(halves)
+    quaternions = rng.normal(size=(n, 4))
+    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
+    poses = np.concatenate([rng.uniform(low, high, (n, 3)), quaternions], axis=1)
+    return (poses[:n_static], halves[:n_static]), (poses[n_static:], halves[n_static:])
+
+
 def mixed_shapes_scene(n, seed):
     """Return needles, plates and cubes from 1 cm to 3 m across, at random angles."""
     rng = np.random.default_rng(seed)
     shapes = np.array([[1.0, 0.01, 0.01], [1.0, 1.0, 0.01], [1.0, 1.0, 1.0]])
     halves = shapes[rng.integers(0, 3, n)] * rng.uniform(0.05, 1.5, (n, 1))
-    quaternions = rng.normal(size=(n, 4))
-    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
-    poses = np.concatenate([rng.uniform(0.0, 12.0, (n, 3)), quaternions], axis=1)
-    half = n // 2
-    return (poses[:half], halves[:half]), (poses[half:], halves[half:])
+    return scattered(rng, halves, 0.0, 12.0, n // 2)
 
 
 def test_brute_force_world_agrees_with_fcl_on_needles_plates_and_cubes():
@@ -193,11 +198,7 @@ def mixed_scales_scene(n, seed):
     """Return boxes from 1 mm to 50 m across in one scene, each side on a log scale."""
     rng = np.random.default_rng(seed)
     halves = np.exp(rng.uniform(np.log(5e-4), np.log(25.0), (n, 3)))
-    quaternions = rng.normal(size=(n, 4))
-    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
-    poses = np.concatenate([rng.uniform(-30.0, 30.0, (n, 3)), quaternions], axis=1)
-    third = n // 3
-    return (poses[:third], halves[:third]), (poses[third:], halves[third:])
+    return scattered(rng, halves, -30.0, 30.0, n // 3)
 
 
 def test_brute_force_world_agrees_with_fcl_on_mixed_scales():
