@@ -12,6 +12,11 @@ def random_quaternions(rng, n):
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
+def log_scale_half_extents(rng, n):
+    """Return (n, 3) half extents from 0.5 mm to 25 m, each drawn on a log scale."""
+    return np.exp(rng.uniform(np.log(5e-4), np.log(25.0), (n, 3)))
+
+
 def poses(positions, quaternions):
     return np.concatenate([positions, quaternions], axis=1)
 

@@ -5,8 +5,8 @@ Two references, both independent of the phase under test: the World with ``brute
 definition (the candidates must contain every overlapping pair, once, in interface order).
 """
 from broadphase_reference import (
-    contact_ids, flying_out, poses, random_quaternions, reference_overlaps, Scene,
-    sorted_pairs, uniform)
+    contact_ids, flying_out, log_scale_half_extents, poses, random_quaternions,
+    reference_overlaps, Scene, sorted_pairs, uniform)
 import numpy as np
 import pytest
 
@@ -122,7 +122,7 @@ def mixed_scales_scene(n=400, seed=8):
     Cells and leaves sized from the mean size fit almost no body, and many are big boxes.
     """
     rng = np.random.default_rng(seed)
-    extents = np.exp(rng.uniform(np.log(5e-4), np.log(25.0), (n, 3)))
+    extents = log_scale_half_extents(rng, n)
     all_poses = poses(rng.uniform(-30.0, 30.0, (n, 3)), random_quaternions(rng, n))
     third = n // 3
     return drifting(all_poses[:third], extents[:third], all_poses[third:], extents[third:],

@@ -11,6 +11,7 @@ how many there were, so an exclusion can never hide silently.
 """
 from decimal import Decimal
 
+from broadphase_reference import log_scale_half_extents, random_quaternions
 from exact_sat import exact_sat
 import fcl
 import numpy as np
@@ -173,11 +174,9 @@ def test_brute_force_world_agrees_with_fcl_on_resting_boxes():
 
 def scattered(rng, halves, low, high, n_static):
     """Return (static, dynamic) (poses, half extents): the boxes at random in a cube."""
-    n = len(halves)
-    quaternions = rng.normal(size=(n, 4))
-    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
-    poses = np.concatenate([rng.uniform(low, high, (n, 3)), quaternions], axis=1)
-    return (poses[:n_static], halves[:n_static]), (poses[n_static:], halves[n_static:])
+    quaternions = random_quaternions(rng, len(halves))
+    boxes = np.concatenate([rng.uniform(low, high, (len(halves), 3)), quaternions], axis=1)
+    return (boxes[:n_static], halves[:n_static]), (boxes[n_static:], halves[n_static:])
 
 
 def mixed_shapes_scene(n, seed):
@@ -197,7 +196,7 @@ def test_brute_force_world_agrees_with_fcl_on_needles_plates_and_cubes():
 def mixed_scales_scene(n, seed):
     """Return boxes from 1 mm to 50 m across in one scene, each side on a log scale."""
     rng = np.random.default_rng(seed)
-    halves = np.exp(rng.uniform(np.log(5e-4), np.log(25.0), (n, 3)))
+    halves = log_scale_half_extents(rng, n)
     return scattered(rng, halves, -30.0, 30.0, n // 3)
 
 
