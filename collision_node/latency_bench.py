@@ -3,7 +3,7 @@
     collision_latency --quick --json latency.json     # under 2 minutes
     collision_latency --json latency.json             # 100 ... 100,000 bodies at 10, 100, 1,000 Hz
 
-Prints markdown tables; ``--json`` writes every number. Six sections:
+Prints markdown tables; ``--json`` writes every number. Seven sections:
 
 * latency: the node runs as its own process (``python -m collision_node.node``, the console
   script's code, default parameters but the scene's sizes); this process publishes pre-serialised
@@ -22,6 +22,8 @@ Prints markdown tables; ``--json`` writes every number. Six sections:
 * skips: what a scene does not need, each against the case that needs it, through
   ``CollisionNode._check`` (the node's whole tick without the transport), in this process.
 * sphere: the World's narrow phase with and without the bounding-sphere prefilter, here.
+* gaps: the World's tick (DESIGN's scene, here) back to back and after idle time of each kind
+  (sleeping, busy-waiting, the caches flushed), interleaved: why sparse input ticks slower.
 * startup: node process start → first answer, with a fresh numba cache (cold) and again (warm).
 
 Scene: ``scenes.uniform(N)`` (about one colliding pair per body); by default all N bodies come
@@ -74,7 +76,15 @@ READY_TIMEOUT_S = 300.0
 SKIP_TICKS = 30        # timed ticks per case of the skips section
 STAMP_OFFSET = ENCAPSULATION_SIZE  # the stamp (int32 sec, uint32 nanosec) follows the header
 NODE_STOP_TIMEOUT_S = 10.0
-SECTIONS = ('latency', 'floor', 'output', 'skips', 'sphere', 'startup')
+SECTIONS = ('latency', 'floor', 'output', 'skips', 'sphere', 'gaps', 'startup')
+# The gaps section: what comes before each tick, (name, kind, seconds), timed in rounds that
+# take every case in turn, so that a slow minute of a shared machine hits them all alike.
+GAPS = (('nothing (back to back)', 'none', 0.0), ('sleep 1 ms', 'sleep', 0.001),
+        ('sleep 10 ms', 'sleep', 0.01), ('busy-wait 10 ms', 'busy', 0.01),
+        ('caches flushed', 'flush', 0.0))
+GAP_ROUNDS = 6
+GAP_TICKS_PER_ROUND = 8
+FLUSH_BYTES = 64 << 20  # written between ticks: twice the largest L3 cache of our machines
 
 
 class Plan(NamedTuple):
@@ -86,17 +96,19 @@ class Plan(NamedTuple):
     max_messages: int  # per run, so that slow large runs stay short
     skip_bodies: int   # size of the skips section's scenes
     sphere_sizes: tuple
+    gap_bodies: int    # size of the gaps section's scene
     startup: bool
 
 
 PLANS = {
     'full': Plan(sizes=(100, 1000, 10000, 100000), rates=(10, 100, 1000), run_s=10.0,
                  max_messages=3000, skip_bodies=10000, sphere_sizes=(10000, 100000),
-                 startup=True),
+                 gap_bodies=10000, startup=True),
     'quick': Plan(sizes=(100, 1000, 10000, 100000), rates=(10, 100, 1000), run_s=3.0,
-                  max_messages=600, skip_bodies=10000, sphere_sizes=(10000,), startup=False),
+                  max_messages=600, skip_bodies=10000, sphere_sizes=(10000,), gap_bodies=10000,
+                  startup=False),
     'tiny': Plan(sizes=(100,), rates=(20,), run_s=1.0, max_messages=20, skip_bodies=200,
-                 sphere_sizes=(200,), startup=False),
+                 sphere_sizes=(200,), gap_bodies=200, startup=False),
 }
 
 
@@ -546,6 +558,36 @@ def sphere_section(plan):
     return rows
 
 
+def gaps_section(plan):
+    """Time the World's stages after each kind of gap in GAPS (DESIGN's scene, statics set)."""
+    frames, static_poses, static_extents, extents = scene_input(plan.gap_bodies, statics=True)
+    world = World()
+    world.set_static(static_poses, static_extents)
+    inputs = itertools.cycle(frames)
+    for _ in range(FRAMES):  # the grid's order and table sizes settle
+        world.step(next(inputs), extents)
+    flushed = np.zeros(FLUSH_BYTES // 8)
+    stages = ('prepare_ms', 'broad_ms', 'narrow_ms', 'total_ms')
+    times = {name: {stage: [] for stage in stages} for name, _, _ in GAPS}
+    for _ in range(GAP_ROUNDS):
+        for name, kind, seconds in GAPS:
+            for _ in range(GAP_TICKS_PER_ROUND):
+                if kind == 'sleep':
+                    time.sleep(seconds)
+                elif kind == 'busy':
+                    until = time.perf_counter() + seconds
+                    while time.perf_counter() < until:
+                        pass
+                elif kind == 'flush':
+                    flushed += 1.0
+                stats = world.step(next(inputs), extents).stats
+                for stage in stages:
+                    times[name][stage].append(stats[stage])
+    return [dict({'before_tick': name, 'bodies': plan.gap_bodies},
+                 **{stage: float(np.median(times[name][stage])) for stage in stages})
+            for name, _, _ in GAPS]
+
+
 def startup_section(domain_id):
     """Process start → first answer, with an empty numba cache and then with it filled."""
     rows = []
@@ -623,6 +665,8 @@ def markdown(results):
             ('Sphere prefilter: SAT stage, median ms', 'sphere',
              ('scene', 'bodies', 'candidate_pairs', 'colliding_pairs', 'sat_tests_on',
               'narrow_ms_on', 'narrow_ms_off')),
+            ("Gaps: the World's tick after idle time, median ms", 'gaps',
+             ('bodies', 'before_tick', 'prepare_ms', 'broad_ms', 'narrow_ms', 'total_ms')),
             ('Startup: process start → first answer (s)', 'startup', ('cache', 'ready_s'))):
         if results.get(key):
             out += ['## ' + title, '', '| ' + ' | '.join(columns) + ' |',
@@ -703,6 +747,9 @@ def main(args=None):
     if 'sphere' in sections:
         results['sphere'] = sphere_section(plan)
         progress('sphere done')
+    if 'gaps' in sections:
+        results['gaps'] = gaps_section(plan)
+        progress('gaps done')
     if 'startup' in sections and plan.startup:
         results['startup'] = startup_section(options.domain_id)
     results['seconds'] = time.perf_counter() - start

@@ -31,7 +31,7 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
          '--domain-id', str(DOMAIN_ID)], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     for title in ('PoseArray in → collisions out', 'Floor:', 'Output:', 'Skip what a scene',
-                  'Sphere'):
+                  'Sphere', 'Gaps:'):
         assert title in done.stdout
     results = json.loads(path.read_text())
     row, = results['latency']
@@ -54,6 +54,11 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
     assert all(r['needed_ms'] > 0 and r['skipped_ms'] > 0 for r in results['skips'])
     for r in results['sphere']:
         assert r['sat_tests_on'] <= r['candidate_pairs']
+    assert [r['before_tick'] for r in results['gaps']] == [
+        name for name, _, _ in latency_bench.GAPS]
+    for r in results['gaps']:
+        assert r['bodies'] == 200
+        assert 0.0 < r['broad_ms'] <= r['total_ms'] and 0.0 < r['narrow_ms'] <= r['total_ms']
 
 
 def test_100000_poses_through_ros(tmp_path):
