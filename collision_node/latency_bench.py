@@ -84,7 +84,7 @@ GAPS = (('nothing (back to back)', 'none', 0.0), ('sleep 1 ms', 'sleep', 0.001),
         ('caches flushed', 'flush', 0.0))
 GAP_ROUNDS = 6
 GAP_TICKS_PER_ROUND = 8
-FLUSH_BYTES = 64 << 20  # written between ticks: twice the largest L3 cache of our machines
+FLUSH_BYTES = 64 << 20  # written between ticks: twice the L3 cache of the EPYC machine (32 MB)
 
 
 class Plan(NamedTuple):
