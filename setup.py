@@ -25,13 +25,13 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'collision_node = collision_node.node:main',
+            'collision_node = collision_node.ros.node:main',
             'pose_publisher = collision_node.tools.pose_publisher:main',
             'collision_monitor = collision_node.tools.collision_monitor:main',
             'collision_demo = collision_node.tools.demo:main',
-            'collision_bench = collision_node.bench:main',
-            'collision_latency = collision_node.latency_bench:main',
-            'collision_soak = collision_node.tools.soak:main',
+            'collision_bench = collision_node.benchmarks.collision_bench:main',
+            'collision_latency = collision_node.benchmarks.collision_latency:main',
+            'collision_soak = collision_node.benchmarks.collision_soak:main',
         ],
     },
 )

@@ -10,7 +10,7 @@ which builds the structures and may compile, is not counted), the median CPU mil
 the whole ``World.step`` (``time.process_time``: less disturbed when other processes share the
 cores), the median candidate pairs and the phase that ran (what ``auto`` chose). A phase
 whose first tick takes longer than ``--give-up`` seconds is skipped at that size and beyond.
-Scenes come from ``collision_node.scenes`` (the lead's benchmark scenes): ``uniform`` and
+Scenes come from ``collision_node.pipeline.scenes`` (the lead's benchmark scenes): ``uniform`` and
 ``clustered`` have half of the bodies static; ``flying_out`` is paper 001's seed scene,
 measured over its first ``--seconds`` seconds (dense at first, sparse later).
 """
@@ -22,11 +22,12 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from collision_node import scenes, World  # noqa: E402 (after the path set-up)
-from collision_node.broadphase import NAMES, Settings  # noqa: E402
-from collision_node.broadphase.kd_tree import KdTreePhase  # noqa: E402
-from collision_node.broadphase.octree import Octree  # noqa: E402
-from collision_node.obb import Boxes, set_boxes  # noqa: E402
+from collision_node import World  # noqa: E402 (after the path set-up)
+from collision_node.pipeline import scenes  # noqa: E402 (after the path set-up)
+from collision_node.pipeline.broadphase import NAMES, Settings  # noqa: E402
+from collision_node.pipeline.broadphase.kd_tree import KdTreePhase  # noqa: E402
+from collision_node.pipeline.broadphase.octree import Octree  # noqa: E402
+from collision_node.pipeline.obb import Boxes, set_boxes  # noqa: E402
 
 # (scene, bodies, ticks, seconds per tick) of the two studies
 STUDY_SCENES = [('flying_out', 1024, 300, 1 / 60), ('uniform', 1024, 60, 1 / 30),

@@ -2,7 +2,7 @@
 
 The reference finds the AABB-overlapping pairs with numpy broadcasting, written from the
 definition (closed intervals on three axes) rather than from the kernels; the scenes are
-small, seeded and self-contained, so the tests do not depend on ``collision_node.scenes``.
+small, seeded and self-contained, so the tests do not depend on ``collision_node.pipeline.scenes``.
 """
 import numpy as np
 

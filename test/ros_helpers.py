@@ -24,9 +24,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
-from collision_node.messages import cloud_to_contacts
-from collision_node.node import CollisionNode
-from collision_node.world import DYNAMIC, STATIC
+from collision_node.pipeline.world import DYNAMIC, STATIC
+from collision_node.ros.messages import cloud_to_contacts
+from collision_node.ros.node import CollisionNode
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 TIMEOUT_S = 20.0
@@ -263,7 +263,7 @@ def node_environment(domain_id):
 
 def node_command(*ros_arguments):
     """Return the command line that runs the node in a process of this Python."""
-    return [sys.executable, '-m', 'collision_node.node', '--ros-args', *ros_arguments]
+    return [sys.executable, '-m', 'collision_node.ros.node', '--ros-args', *ros_arguments]
 
 
 def run_node(domain_id, params_file, timeout_s=120):
@@ -276,9 +276,9 @@ def run_node(domain_id, params_file, timeout_s=120):
 def run_soak(domain_id, json_path, *arguments, timeout_s=900):
     """Run collision_soak as a process; return its result and its summary (a dict)."""
     done = subprocess.run(
-        [sys.executable, '-m', 'collision_node.tools.soak', '--json', str(json_path),
-         *arguments], cwd=REPO, env=node_environment(domain_id), capture_output=True,
-        text=True, timeout=timeout_s)
+        [sys.executable, '-m', 'collision_node.benchmarks.collision_soak', '--json',
+         str(json_path), *arguments], cwd=REPO, env=node_environment(domain_id),
+        capture_output=True, text=True, timeout=timeout_s)
     summary = json.loads(pathlib.Path(json_path).read_text()) if done.returncode in (0, 1) \
         else None
     return done, summary

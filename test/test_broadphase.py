@@ -11,13 +11,14 @@ import numpy as np
 import pytest
 
 from collision_node import World
-from collision_node import world as world_module
-from collision_node.broadphase import check_settings, grid, make_broad_phase, NAMES, Settings
-from collision_node.broadphase.auto import Auto, SWITCH_AFTER_TICKS
-from collision_node.broadphase.kd_tree import KdTreePhase
-from collision_node.broadphase.octree import Octree, paper_depth, size_depth
-from collision_node.broadphase.sweep_and_prune import SweepAndPrune
-from collision_node.obb import Boxes, set_boxes
+from collision_node.pipeline import world as world_module
+from collision_node.pipeline.broadphase import (check_settings, grid, make_broad_phase, NAMES,
+                                                Settings)
+from collision_node.pipeline.broadphase.auto import Auto, SWITCH_AFTER_TICKS
+from collision_node.pipeline.broadphase.kd_tree import KdTreePhase
+from collision_node.pipeline.broadphase.octree import Octree, paper_depth, size_depth
+from collision_node.pipeline.broadphase.sweep_and_prune import SweepAndPrune
+from collision_node.pipeline.obb import Boxes, set_boxes
 
 PHASES = [name for name in NAMES if name != 'brute_force']  # brute force is the reference
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])

@@ -1,4 +1,4 @@
-"""collision_node.cdr against rclpy's own (de)serialisation, the independent reference."""
+"""collision_node.ros.cdr against rclpy's own (de)serialisation, the independent reference."""
 import struct
 
 from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
@@ -8,8 +8,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
-from collision_node.cdr import (CdrError, parse_pose_array, serialize_point_cloud,
-                                serialize_pose_array)
+from collision_node.ros.cdr import (CdrError, parse_pose_array, serialize_point_cloud,
+                                    serialize_pose_array)
 
 LETTERS = 'abcdefghijklmnopq'
 UTF8_FRAMES = ['wörld', 'カメラ_link', '\U0001f916', 'é' * 7]

@@ -22,9 +22,9 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
-from collision_node.cdr import serialize_pose_array
-from collision_node.messages import cloud_to_contacts
-from collision_node.world import warm_up
+from collision_node.pipeline.world import warm_up
+from collision_node.ros.cdr import serialize_pose_array
+from collision_node.ros.messages import cloud_to_contacts
 
 PACKAGE = 'collision_node'
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -8,7 +8,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 import pytest
 
-from collision_node.diagnostics import ERROR, Monitor, OK, STAGES, WARN
+from collision_node.ros.diagnostics import ERROR, Monitor, OK, STAGES, WARN
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 WORLD_STATS = {'broad_phase': 'sphere', 'dynamic_bodies': 5, 'static_bodies': 2,
@@ -164,7 +164,7 @@ def test_no_ticks_reports_zeros():
 
 
 def test_pure_modules_do_not_import_rclpy():
-    check = ('import sys, collision_node.diagnostics, collision_node.params; '
+    check = ('import sys, collision_node.ros.diagnostics, collision_node.ros.params; '
              'sys.exit(" ".join(m for m in sys.modules if m.startswith("rclpy")) or None)')
     done = subprocess.run([sys.executable, '-c', check], cwd=REPO, capture_output=True,
                           text=True, timeout=60)

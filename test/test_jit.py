@@ -29,10 +29,10 @@ import numba
 import numpy as np
 import rclpy
 from rclpy.parameter import Parameter
-from collision_node import scenes
-from collision_node.broadphase import NAMES
-from collision_node.cdr import serialize_pose_array
-from collision_node.node import CollisionNode
+from collision_node.pipeline import scenes
+from collision_node.pipeline.broadphase import NAMES
+from collision_node.ros.cdr import serialize_pose_array
+from collision_node.ros.node import CollisionNode
 
 
 def compiled():
@@ -80,7 +80,7 @@ import os
 import sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
-from collision_node import obb, sat
+from collision_node.pipeline import obb, sat
 assert obb.__file__.startswith(sys.argv[1]), obb.__file__
 obb.spheres_apart(np.zeros((2, 3)), np.ones(2), 0, 1)
 print(obb.spheres_apart._cache._cache_path)

@@ -7,8 +7,8 @@ leaves, grid tables, sort orders, pair buffers) must not leak.
 import numpy as np
 import pytest
 
-from collision_node.broadphase import NAMES
-from collision_node.world import World
+from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.world import World
 
 TICKS = 10_000
 WARM_TICKS = 1_000       # RSS is compared from here on: buffers have grown to their size
@@ -82,7 +82,7 @@ def test_ten_thousand_ticks_every_phase_equals_brute_force_and_memory_stays_flat
 @pytest.mark.slow
 def test_memory_of_a_long_large_run_stays_flat():
     """The same check with the grid at 20,000 bodies over 2,000 ticks (about 3 minutes)."""
-    from collision_node.scenes import uniform
+    from collision_node.pipeline.scenes import uniform
     scene = uniform(20_000, seed=3)
     world = World(broad_phase='grid')
     world.set_static(scene.static_poses, scene.static_half_extents)

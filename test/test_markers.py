@@ -10,9 +10,10 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from collision_node import markers, scenes
-from collision_node.markers import MarkerWriter
-from collision_node.world import DYNAMIC, World
+from collision_node.pipeline import scenes
+from collision_node.pipeline.world import DYNAMIC, World
+from collision_node.ros import markers
+from collision_node.ros.markers import MarkerWriter
 
 
 def color(rgba):

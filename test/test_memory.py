@@ -8,7 +8,7 @@ import sys
 PATTERN = """
 import resource, sys
 import numpy as np
-from collision_node.memory import keep_heap_memory
+from collision_node.ros.memory import keep_heap_memory
 if sys.argv[1] == 'keep':
     assert keep_heap_memory()
 sizes = (2 << 20, 9 << 20)

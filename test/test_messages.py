@@ -7,10 +7,10 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
-from collision_node.messages import (CLOUD_DTYPE, cloud_to_contacts, CloudWriter,
-                                     contacts_to_cloud, contacts_to_points,
-                                     serialize_collisions)
-from collision_node.world import CONTACT_DTYPE
+from collision_node.pipeline.world import CONTACT_DTYPE
+from collision_node.ros.messages import (CLOUD_DTYPE, cloud_to_contacts, CloudWriter,
+                                         contacts_to_cloud, contacts_to_points,
+                                         serialize_collisions)
 
 FLOAT_NAMES = ['x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth']
 ID_NAMES = ['id_a', 'type_a', 'id_b', 'type_b']

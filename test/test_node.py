@@ -16,10 +16,10 @@ from ros_helpers import (check_room_contacts, count_ticks_and_drops, EXPECTED, H
                          room_poses, values)
 from visualization_msgs.msg import Marker
 
-from collision_node import scenes
-from collision_node.cdr import serialize_pose_array
-from collision_node.messages import cloud_to_contacts
-from collision_node.world import DYNAMIC, World
+from collision_node.pipeline import scenes
+from collision_node.pipeline.world import DYNAMIC, World
+from collision_node.ros.cdr import serialize_pose_array
+from collision_node.ros.messages import cloud_to_contacts
 
 DOMAIN_ID = random.Random(os.getpid() + 1).randint(1, 200)
 

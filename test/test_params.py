@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from ros_helpers import BAD_YAML, GOOD_YAML, run_node, write_params
 
-from collision_node import params
-from collision_node.params import ParameterError
+from collision_node.ros import params
+from collision_node.ros.params import ParameterError
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 DOMAIN_ID = random.Random(os.getpid()).randint(1, 200)
@@ -151,7 +151,7 @@ def context():
 
 def test_params_file_reaches_the_node(context, tmp_path):
     import rclpy
-    from collision_node.node import CollisionNode
+    from collision_node.ros.node import CollisionNode
     rclpy.init(args=['--ros-args', '--params-file', write_params(tmp_path / 'p.yaml', GOOD_YAML)],
                context=context, domain_id=DOMAIN_ID)
     node = CollisionNode(context=context)
@@ -168,8 +168,8 @@ def test_params_file_reaches_the_node(context, tmp_path):
 
 def test_default_config_is_the_demo_room(context):
     import rclpy
-    from collision_node import scenes
-    from collision_node.node import CollisionNode
+    from collision_node.pipeline import scenes
+    from collision_node.ros.node import CollisionNode
     rclpy.init(args=['--ros-args', '--params-file', str(REPO / 'config' / 'default.yaml')],
                context=context, domain_id=DOMAIN_ID)
     node = CollisionNode(context=context)
@@ -189,7 +189,7 @@ def test_default_config_is_the_demo_room(context):
 def test_input_qos_can_be_overridden(context, tmp_path):
     import rclpy
     from rclpy.qos import HistoryPolicy, ReliabilityPolicy
-    from collision_node.node import CollisionNode
+    from collision_node.ros.node import CollisionNode
     path = write_params(tmp_path / 'p.yaml', """
 qos_overrides:
   /dynamic_poses:
@@ -211,7 +211,7 @@ qos_overrides:
 
 def test_empty_collider_list_from_yaml(context, tmp_path):
     import rclpy
-    from collision_node.node import CollisionNode
+    from collision_node.ros.node import CollisionNode
     path = write_params(tmp_path / 'p.yaml', 'static_colliders: []\n')
     rclpy.init(args=['--ros-args', '--params-file', path], context=context,
                domain_id=DOMAIN_ID)
@@ -222,7 +222,7 @@ def test_empty_collider_list_from_yaml(context, tmp_path):
 @pytest.mark.parametrize('name', sorted(BAD_YAML))
 def test_bad_params_file_stops_the_node(context, tmp_path, name):
     import rclpy
-    from collision_node.node import CollisionNode
+    from collision_node.ros.node import CollisionNode
     path = write_params(tmp_path / 'p.yaml', BAD_YAML[name])
     rclpy.init(args=['--ros-args', '--params-file', path], context=context,
                domain_id=DOMAIN_ID)
@@ -237,7 +237,7 @@ def test_bad_params_file_stops_the_node(context, tmp_path, name):
 def test_misspelt_parameter_is_warned_at_start(context, capfd):
     import rclpy
     from rclpy.parameter import Parameter
-    from collision_node.node import CollisionNode
+    from collision_node.ros.node import CollisionNode
     rclpy.init(context=context, domain_id=DOMAIN_ID)
     node = CollisionNode(context=context, parameter_overrides=[
         Parameter('dynamic.half_extent', value=[0.1, 0.1, 0.1])])
@@ -252,7 +252,7 @@ def test_misspelt_parameter_is_warned_at_start(context, capfd):
 def test_bad_overrides_stop_the_node(context):
     import rclpy
     from rclpy.parameter import Parameter
-    from collision_node.node import CollisionNode
+    from collision_node.ros.node import CollisionNode
     rclpy.init(context=context, domain_id=DOMAIN_ID)
     with pytest.raises(ParameterError, match="parameter 'box.pose': quaternion"):
         CollisionNode(context=context, parameter_overrides=[

@@ -26,12 +26,12 @@ from ros_helpers import (BAD_YAML, check_room_contacts, COLLIDERS, count_inputs,
                          run_soak, values, write_params)
 from sensor_msgs.msg import PointCloud2
 
-from collision_node import scenes
-from collision_node.broadphase import NAMES
-from collision_node.cdr import serialize_pose_array
-from collision_node.messages import cloud_to_contacts
-from collision_node.obb import MAX_COORDINATE
-from collision_node.world import World
+from collision_node.pipeline import scenes
+from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.obb import MAX_COORDINATE
+from collision_node.pipeline.world import World
+from collision_node.ros.cdr import serialize_pose_array
+from collision_node.ros.messages import cloud_to_contacts
 
 DOMAIN_ID = random.Random(os.getpid() + 2).randint(1, 200)
 # Fuzzed buffers go out in bursts this long; the node's input queue is made as deep (its

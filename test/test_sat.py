@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 from test_sat_stress import axis_angle, Case, matrix, multiply, run_kernel
 
-from collision_node import sat, World
-from collision_node.obb import Boxes, EPS, set_boxes
+from collision_node import World
+from collision_node.pipeline import sat
+from collision_node.pipeline.obb import Boxes, EPS, set_boxes
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 SQRT2 = math.sqrt(2.0)
@@ -398,8 +399,8 @@ def benchmark(bodies=10000, repeats=30):
     """
     import time
 
-    from collision_node import scenes
-    from collision_node.broadphase.brute_force import BruteForce
+    from collision_node.pipeline import scenes
+    from collision_node.pipeline.broadphase.brute_force import BruteForce
 
     scene = scenes.uniform(bodies, seed=0)
     poses = np.concatenate([scene.static_poses, scene.dynamic_poses(0.0)])

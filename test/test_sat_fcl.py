@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 from test_sat_stress import Case, CLASSES, generate, random_quaternion, run_kernel, size_of
 
-from collision_node import sat, scenes, World
+from collision_node import World
+from collision_node.pipeline import sat, scenes
 
 # FCL's own box-box test adds a fixed epsilon to |R| (and a 5 % bias toward face axes): its
 # verdict is only trusted farther than this fraction of the size from touching.

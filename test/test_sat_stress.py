@@ -29,8 +29,8 @@ from exact_sat import distance_outside, exact_sat, separation_along, signed_offs
 import numpy as np
 import pytest
 
-from collision_node import sat
-from collision_node.obb import Boxes, EPS, set_boxes, TIE_ULPS
+from collision_node.pipeline import sat
+from collision_node.pipeline.obb import Boxes, EPS, set_boxes, TIE_ULPS
 
 # Depth, normal and contact point agree with the exact values to this fraction of the size of
 # the larger box (its largest half extent); float64 rounding alone is ~1e-14 of it.

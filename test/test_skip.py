@@ -7,8 +7,8 @@ How much time each skip saves is measured by ``collision_latency`` (section "ski
 import numpy as np
 import pytest
 
-from collision_node import scenes, world as world_module
-from collision_node.world import World
+from collision_node.pipeline import scenes, world as world_module
+from collision_node.pipeline.world import World
 
 
 class Spy:

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from ros_helpers import run_soak
 
-from collision_node.tools.soak import (memory_trend, parse_arguments, percentiles_ms,
-                                       RSS_PERIOD_S)
+from collision_node.benchmarks.collision_soak import (memory_trend, parse_arguments,
+                                                      percentiles_ms, RSS_PERIOD_S)
 
 DOMAIN_ID = random.Random(os.getpid() + 3).randint(1, 200)
 SOAK_TICKS = 10_000

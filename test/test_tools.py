@@ -19,9 +19,9 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
-from collision_node.cdr import parse_pose_array
-from collision_node.messages import CLOUD_DTYPE, contacts_to_cloud
-from collision_node.scenes import make_scene
+from collision_node.pipeline.scenes import make_scene
+from collision_node.ros.cdr import parse_pose_array
+from collision_node.ros.messages import CLOUD_DTYPE, contacts_to_cloud
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOMAIN_ID = random.randint(1, 200)  # this module's own DDS domain: no cross-talk

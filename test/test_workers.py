@@ -4,7 +4,7 @@ import time
 
 import pytest
 
-from collision_node.workers import CHUNKS_PER_THREAD, Workers
+from collision_node.pipeline.workers import CHUNKS_PER_THREAD, Workers
 
 
 @pytest.mark.parametrize('threads', [1, 2, 3])

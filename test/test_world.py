@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 from collision_node import CONTACT_DTYPE, DYNAMIC, STATIC, World
-from collision_node.broadphase import NAMES
-from collision_node.obb import QUATERNION_NORM_TOLERANCE
-from collision_node.scenes import uniform
-from collision_node.world import _z_order, MAX_COORDINATE, Z_ORDER_BITS, Z_ORDER_MIN_TICKS
+from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.obb import QUATERNION_NORM_TOLERANCE
+from collision_node.pipeline.scenes import uniform
+from collision_node.pipeline.world import _z_order, MAX_COORDINATE, Z_ORDER_BITS, Z_ORDER_MIN_TICKS
 
 IDENTITY = [0.0, 0.0, 0.0, 1.0]
 
@@ -17,8 +17,8 @@ def pose(x, y=0.0, z=0.0, quaternion=IDENTITY):
 
 def reference_pairs(static_poses, static_extents, poses, extents):
     """(id_a, type_b, id_b) of every colliding pair, by SAT on all pairs, no broad phase."""
-    from collision_node.obb import Boxes, set_boxes
-    from collision_node.sat import collide_pairs, COLLIDING
+    from collision_node.pipeline.obb import Boxes, set_boxes
+    from collision_node.pipeline.sat import collide_pairs, COLLIDING
     n_static, n_dynamic = len(static_poses), len(poses)
     boxes = Boxes(n_static + n_dynamic)
     if n_static:

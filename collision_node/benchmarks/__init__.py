@@ -1,4 +1,8 @@
-"""The pieces of ``collision_bench`` (:mod:`collision_node.bench`), one concern per module.
+"""The benchmark programs and their parts.
+
+:mod:`~collision_node.benchmarks.collision_bench`,
+:mod:`~collision_node.benchmarks.collision_latency` and
+:mod:`~collision_node.benchmarks.collision_soak` are the console scripts of the same names.
 
 :mod:`~collision_node.benchmarks.runs` steps a World through a scene and times its ticks;
 :mod:`~collision_node.benchmarks.accuracy` measures run time against error for each broad

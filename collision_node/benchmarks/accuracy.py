@@ -31,12 +31,12 @@ import time
 
 import numpy as np
 
-from collision_node._jit import kernel
 from collision_node.benchmarks.runs import tick_poses
-from collision_node.broadphase import make_broad_phase, Settings
-from collision_node.obb import aabbs_overlap, Boxes, set_boxes, spheres_apart
-from collision_node.sat import collide_pairs, COLLIDING
-from collision_node.world import STATIC, World
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.broadphase import make_broad_phase, Settings
+from collision_node.pipeline.obb import aabbs_overlap, Boxes, set_boxes, spheres_apart
+from collision_node.pipeline.sat import collide_pairs, COLLIDING
+from collision_node.pipeline.world import STATIC, World
 
 CLASSIC = 'every compared pair (classic)'
 BROAD_ONLY = 'broad phase only'

@@ -30,7 +30,8 @@ def fcl_available():
 class FclWorld:
     """Static and dynamic boxes in python-fcl, with pairs reported as World box rows.
 
-    Rows follow :class:`collision_node.obb.Boxes`' layout: static boxes first, then dynamic.
+    Rows follow :class:`~collision_node.pipeline.obb.Boxes`' layout: static boxes first, then
+    dynamic.
     """
 
     def __init__(self, static_poses, static_half_extents, dynamic_half_extents, first_poses):
@@ -99,7 +100,7 @@ def compare_with_fcl(scene, ticks, dt, phase_names, limits):
     """
     from collision_node.benchmarks.accuracy import contact_keys, pair_errors, pair_keys
     from collision_node.benchmarks.runs import tick_poses
-    from collision_node.world import World
+    from collision_node.pipeline.world import World
 
     n_static = len(scene.static_poses)
     n_total = n_static + scene.dynamic_count

@@ -10,10 +10,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node.obb import Boxes, set_boxes
-from collision_node.sat import collide_pairs, COLLIDING
-from collision_node.scenes import make_scene
-from collision_node.world import World
+from collision_node.pipeline.obb import Boxes, set_boxes
+from collision_node.pipeline.sat import collide_pairs, COLLIDING
+from collision_node.pipeline.scenes import make_scene
+from collision_node.pipeline.world import World
 
 # Each run is preceded by two ticks of the same configuration on a scene this small, so every
 # kernel it calls is compiled (or loaded from numba's cache) before the clock starts.

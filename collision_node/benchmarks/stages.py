@@ -12,11 +12,11 @@ import time
 
 import numpy as np
 
-from collision_node.broadphase import make_broad_phase, Settings
-from collision_node.contacts import assemble_contacts
-from collision_node.obb import Boxes, set_boxes
-from collision_node.sat import collide_pairs
-from collision_node.world import World
+from collision_node.pipeline.broadphase import make_broad_phase, Settings
+from collision_node.pipeline.contacts import assemble_contacts
+from collision_node.pipeline.obb import Boxes, set_boxes
+from collision_node.pipeline.sat import collide_pairs
+from collision_node.pipeline.world import World
 
 WORLD_STAGES = ('tick', 'prepare', 'broad', 'narrow', 'other')
 # Untimed ticks first, so the profile shows the steady state of stateful phases: ``auto``

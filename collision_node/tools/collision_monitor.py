@@ -18,7 +18,7 @@ from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import PointCloud2
 
-from collision_node.messages import cloud_to_contacts
+from collision_node.ros.messages import cloud_to_contacts
 from collision_node.tools.processes import spin_until_finished
 
 BODY_TYPE_LETTERS = {0: 'd', 1: 's'}  # type 0 = dynamic, 1 = static (DESIGN §3)

@@ -22,7 +22,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
-from collision_node.scenes import ROOM_DYNAMIC_COUNT
+from collision_node.pipeline.scenes import ROOM_DYNAMIC_COUNT
 from collision_node.tools.processes import stop_process
 
 PACKAGE = 'collision_node'
@@ -100,7 +100,7 @@ def start_children(config, bodies, rate):
     """Start the node and the pose publisher with this Python; return {name: Popen}."""
     # Own process groups: Ctrl-C reaches only the demo, which stops each child once, in order.
     commands = {
-        'collision_node': ['-m', 'collision_node.node', '--ros-args', '--params-file', config],
+        'collision_node': ['-m', 'collision_node.ros.node', '--ros-args', '--params-file', config],
         'pose_publisher': ['-m', 'collision_node.tools.pose_publisher', '--scene', 'room',
                            '--bodies', str(bodies), '--rate', str(rate)],
     }

@@ -5,10 +5,10 @@
 
 A scene's clock starts at the first message: message k shows the scene at its header stamp
 minus the first message's stamp, so a subscriber can recompute every pose it receives with
-``collision_node.scenes.make_scene(name, bodies, seed).dynamic_poses(t)``. Only the scene's
-dynamic boxes are published; its static boxes belong in the node's parameters (the statics of
-``room`` are those of config/default.yaml). A .npy file holds one frame (N, 7) or a sequence
-(T, N, 7) of x y z qx qy qz qw rows, published in turn and cycled.
+``make_scene(name, bodies, seed).dynamic_poses(t)`` (:mod:`collision_node.pipeline.scenes`).
+Only the scene's dynamic boxes are published; its static boxes belong in the node's parameters
+(the statics of ``room`` are those of config/default.yaml). A .npy file holds one frame (N, 7)
+or a sequence (T, N, 7) of x y z qx qy qz qw rows, published in turn and cycled.
 """
 import argparse
 import sys
@@ -21,8 +21,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
-from collision_node.cdr import serialize_pose_array
-from collision_node.scenes import make_scene, ROOM_DYNAMIC_COUNT, SCENES
+from collision_node.pipeline.scenes import make_scene, ROOM_DYNAMIC_COUNT, SCENES
+from collision_node.ros.cdr import serialize_pose_array
 from collision_node.tools.processes import spin_until_finished
 
 TOPIC = 'dynamic_poses'

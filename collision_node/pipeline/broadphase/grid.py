@@ -31,15 +31,15 @@ cell (all at one point: brute force within the cell).
 """
 import numpy as np
 
-from collision_node._jit import kernel
-from collision_node.broadphase.cell_table import (
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.broadphase.cell_table import (
     AUTO_SHIFT, bucket_start, BUCKETS_PER_ENTRY, build_table, empty_table,
     shift_for, spatial_order)
-from collision_node.broadphase.cells import (
+from collision_node.pipeline.broadphase.cells import (
     ALL_FIRST, make_lattice, mean_side_and_center, pairs_with_all_dynamic, pairs_with_all_static)
-from collision_node.broadphase.pair_buffer import emit, emit_if, PairBuffer
-from collision_node.obb import overlap_across
-from collision_node.workers import Workers
+from collision_node.pipeline.broadphase.pair_buffer import emit, emit_if, PairBuffer
+from collision_node.pipeline.obb import overlap_across
+from collision_node.pipeline.workers import Workers
 
 # Cell side / mean AABB side. Measured on uniform and seed scenes (README, "Broad phases").
 GRID_CELL_FACTOR = 1.5
@@ -227,6 +227,6 @@ def _big_pairs(aabbs, n_static, n_total, dynamic, static, out):
 
 @kernel
 def _overlaps(x0, y0, z0, x1, y1, z1, aabbs, b):
-    """:func:`~collision_node.obb.overlap_across` with the first box given by its corners."""
+    """:func:`~collision_node.pipeline.obb.overlap_across`, the first box given by its corners."""
     return not ((x0 > aabbs[b, 1, 0]) | (aabbs[b, 0, 0] > x1) | (y0 > aabbs[b, 1, 1])
                 | (aabbs[b, 0, 1] > y1) | (z0 > aabbs[b, 1, 2]) | (aabbs[b, 0, 2] > z1))

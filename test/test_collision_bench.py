@@ -5,15 +5,15 @@ import json
 import numpy as np
 import pytest
 
-from collision_node import bench
+from collision_node.benchmarks import collision_bench as bench
 from collision_node.benchmarks import report
 from collision_node.benchmarks.accuracy import (
     AABBS_ONLY, BROAD_ONLY, CLASSIC, contact_keys, MODES, pair_errors, pair_keys, SAT_FLOAT32,
     SAT_FLOAT64, SPHERES_ONLY)
 from collision_node.benchmarks.runs import all_pairs
-from collision_node.broadphase import NAMES
-from collision_node.scenes import make_scene
-from collision_node.world import CONTACT_DTYPE, DYNAMIC, STATIC
+from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.scenes import make_scene
+from collision_node.pipeline.world import CONTACT_DTYPE, DYNAMIC, STATIC
 
 
 @pytest.fixture(scope='module')

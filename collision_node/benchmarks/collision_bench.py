@@ -6,7 +6,7 @@
 Writes OUTPUT/results.json (every number), OUTPUT/results.md (the tables, the DESIGN §5
 targets with pass/fail, the command that reproduces them) and OUTPUT/time_vs_error.png.
 python-fcl and matplotlib are optional (the ``bench`` extra): without them the fcl table and
-the plot are left out and say why. Scenes come from :mod:`collision_node.scenes`, seeded.
+the plot are left out and say why. Scenes come from :mod:`collision_node.pipeline.scenes`, seeded.
 """
 import argparse
 import math
@@ -26,9 +26,9 @@ from collision_node.benchmarks.fcl_reference import compare_with_fcl, fcl_availa
 from collision_node.benchmarks.runs import (
     Limits, run_all_pairs_sat, run_world, WARM_UP_BODIES, WARM_UP_TICKS, warmed)
 from collision_node.benchmarks.stages import profile_stages
-from collision_node.broadphase import NAMES
-from collision_node.scenes import make_scene
-from collision_node.world import warm_up
+from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.scenes import make_scene
+from collision_node.pipeline.world import warm_up
 
 OCTREE_DEPTHS = tuple(range(1, 10))  # paper 001's Table 1
 PAPER000_OCTREE_DEPTH = 4            # paper 000's octree ran at depth 4

@@ -56,13 +56,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node._jit import kernel
-from collision_node.broadphase import hash_map
-from collision_node.broadphase.cells import (
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.broadphase import hash_map
+from collision_node.pipeline.broadphase.cells import (
     ALL_FIRST, cell_key, cell_range, first_cell_flags, make_lattice, MAX_CELLS_PER_BODY,
     mean_side_and_center, pairs_with_all_dynamic, pairs_with_all_static)
-from collision_node.broadphase.pair_buffer import emit, emit_if, PairBuffer
-from collision_node.obb import aabbs_overlap, overlap_across
+from collision_node.pipeline.broadphase.pair_buffer import emit, emit_if, PairBuffer
+from collision_node.pipeline.obb import aabbs_overlap, overlap_across
 
 NULL = -1  # no leaf, no entry
 

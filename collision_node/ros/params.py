@@ -17,9 +17,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node.broadphase import NAMES
-from collision_node.obb import MAX_COORDINATE, QUATERNION_NORM_TOLERANCE
-from collision_node.world import World
+from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.obb import MAX_COORDINATE, QUATERNION_NORM_TOLERANCE
+from collision_node.pipeline.world import World
 
 # Type names as in the DESIGN table; declare() maps them to rclpy's Parameter.Type.
 STRING, BOOL, INTEGER, DOUBLE = 'string', 'bool', 'integer', 'double'

@@ -57,8 +57,8 @@ import math
 
 import numpy as np
 
-from collision_node._jit import kernel
-from collision_node.obb import EPS, spheres_apart, TIE_ULPS
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.obb import EPS, spheres_apart, TIE_ULPS
 
 SEPARATED = 0
 COLLIDING = 1

@@ -1,12 +1,13 @@
 """Boxes entered in the cells of a lattice, grouped by hashed cell key (a counting sort).
 
 The uniform grid's data structure. A box is entered once per cell of its range
-(:mod:`collision_node.broadphase.cells`); each entry lands in bucket ``hash(cell key)`` of a
-power-of-two table with at least twice as many buckets as entries, and a counting sort lays
-the entries out bucket by bucket (CSR): building is O(boxes + entries + buckets), no
-comparison sort. Distinct cells may share a bucket, so every entry keeps its cell key and
-readers compare keys. Big boxes (more than ``MAX_CELLS_PER_BODY`` cells) are not entered;
-they are listed in ``big_rows`` for a brute-force row each.
+(:mod:`~collision_node.pipeline.broadphase.cells`); each entry lands in bucket
+``hash(cell key)`` of a power-of-two table with at least twice as many buckets as entries,
+and a counting sort lays the entries out bucket by bucket (CSR): building is
+O(boxes + entries + buckets), no comparison sort. Distinct cells may share a bucket, so every
+entry keeps its cell key and readers compare keys. Big boxes (more than
+``MAX_CELLS_PER_BODY`` cells) are not entered; they are listed in ``big_rows`` for a
+brute-force row each.
 
 Memory order decides the speed. The boxes are taken in the order of ``rows`` and the table
 keeps a copy of their AABBs in that order (``aabbs``, one gather per box); entries refer to
@@ -24,8 +25,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node._jit import kernel
-from collision_node.broadphase.cells import (
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.broadphase.cells import (
     ALL_FIRST, bucket_of, cell_key, cell_range, first_cell_flags, LOCAL_BITS,
     MAX_CELLS_PER_BODY)
 

@@ -5,7 +5,7 @@
 
 Prints markdown tables; ``--json`` writes every number. Seven sections:
 
-* latency: the node runs as its own process (``python -m collision_node.node``, the console
+* latency: the node runs as its own process (``python -m collision_node.ros.node``, the console
   script's code, default parameters but the scene's sizes); this process publishes pre-serialised
   PoseArrays (only the stamp is patched in, before the send time is taken) and receives the
   ``collisions`` cloud as raw bytes. Latency = receipt − send on one monotonic clock. Stage
@@ -52,16 +52,16 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 
-from collision_node import diagnostics
-from collision_node.broadphase import NAMES
-from collision_node.cdr import ENCAPSULATION_SIZE, serialize_pose_array
-from collision_node.memory import keep_heap_memory
-from collision_node.messages import CloudWriter, contacts_to_cloud
-from collision_node.node import CollisionNode, INPUT_QOS, OUTPUT_QOS  # the node's own QoS
-from collision_node.params import scene_parameters, write_params_file
-from collision_node.scenes import uniform, UNIFORM_HALF_EXTENTS
+from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.scenes import uniform, UNIFORM_HALF_EXTENTS
+from collision_node.pipeline.world import World
+from collision_node.ros import diagnostics
+from collision_node.ros.cdr import ENCAPSULATION_SIZE, serialize_pose_array
+from collision_node.ros.memory import keep_heap_memory
+from collision_node.ros.messages import CloudWriter, contacts_to_cloud
+from collision_node.ros.node import CollisionNode, INPUT_QOS, OUTPUT_QOS  # the node's own QoS
+from collision_node.ros.params import scene_parameters, write_params_file
 from collision_node.tools.processes import stop_process
-from collision_node.world import World
 
 STATUS_NAME = 'collision_node: collision_check'
 # Fast DDS reads its XML profile (e.g. a larger shared-memory segment) from this variable; the
@@ -209,7 +209,7 @@ def start_node(params_path, domain_id, cache_dir=None, command=None):
         env['NUMBA_CACHE_DIR'] = cache_dir
     log = tempfile.TemporaryFile('w+')
     if command is None:
-        command = [sys.executable, '-m', 'collision_node.node', '--ros-args', '--params-file',
+        command = [sys.executable, '-m', 'collision_node.ros.node', '--ros-args', '--params-file',
                    params_path]
     process = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
     return process, log
@@ -350,7 +350,8 @@ def floor_section(plan, statics, domain_id, progress):
         with open(cloud_path, 'wb') as out:
             out.write(bytes(CloudWriter().serialize(contacts, 0, 0, 'world')))
         return start_node(None, domain_id, command=[
-            sys.executable, '-m', 'collision_node.latency_bench', '--echo', cloud_path])
+            sys.executable, '-m', 'collision_node.benchmarks.collision_latency', '--echo',
+            cloud_path])
 
     return _answered_runs(plan, [(bodies, None) for bodies in plan.sizes], statics, domain_id,
                           progress, start)
@@ -535,7 +536,7 @@ def diagnostics_cost():
 
 def sphere_section(plan):
     """Time the SAT stage with and without the bounding-sphere test, per scene."""
-    from collision_node.scenes import make_scene
+    from collision_node.pipeline.scenes import make_scene
     rows = []
     for name in ('uniform', 'clustered', 'flying_out'):
         for bodies in plan.sphere_sizes:

@@ -15,10 +15,10 @@ import rclpy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import PointCloud2
 
-from collision_node import latency_bench
-from collision_node.cdr import serialize_pose_array
-from collision_node.messages import cloud_to_contacts
-from collision_node.world import World
+from collision_node.benchmarks import collision_latency
+from collision_node.pipeline.world import World
+from collision_node.ros.cdr import serialize_pose_array
+from collision_node.ros.messages import cloud_to_contacts
 
 DOMAIN_ID = random.Random(os.getpid() + 7).randint(1, 200)
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -27,8 +27,9 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
     path = tmp_path / 'latency.json'
     done = subprocess.run(
-        [sys.executable, '-m', 'collision_node.latency_bench', '--tiny', '--json', str(path),
-         '--domain-id', str(DOMAIN_ID)], cwd=REPO, capture_output=True, text=True, timeout=300)
+        [sys.executable, '-m', 'collision_node.benchmarks.collision_latency', '--tiny', '--json',
+         str(path), '--domain-id', str(DOMAIN_ID)], cwd=REPO, capture_output=True, text=True,
+        timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     for title in ('PoseArray in → collisions out', 'Floor:', 'Output:', 'Skip what a scene',
                   'Sphere', 'Gaps:'):
@@ -55,7 +56,7 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
     for r in results['sphere']:
         assert r['sat_tests_on'] <= r['candidate_pairs']
     assert [r['before_tick'] for r in results['gaps']] == [
-        name for name, _, _ in latency_bench.GAPS]
+        name for name, _, _ in collision_latency.GAPS]
     for r in results['gaps']:
         assert r['bodies'] == 200
         assert 0.0 < r['broad_ms'] <= r['total_ms'] and 0.0 < r['narrow_ms'] <= r['total_ms']
@@ -63,27 +64,27 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
 
 def test_100000_poses_through_ros(tmp_path):
     """5.6 MB PoseArrays, reliable QoS, Fast DDS defaults: every one answered, exactly."""
-    frames, static_poses, static_extents, extents = latency_bench.scene_input(100000, False)
+    frames, static_poses, static_extents, extents = collision_latency.scene_input(100000, False)
     params_path = str(tmp_path / 'params.yaml')
-    latency_bench.write_params_file(params_path, latency_bench.node_parameters(
+    collision_latency.write_params_file(params_path, collision_latency.node_parameters(
         static_poses, static_extents, extents, broad_phase='grid'))
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=DOMAIN_ID)
-    client = latency_bench.Client(context)
-    process, log = latency_bench.start_node(params_path, DOMAIN_ID)
+    client = collision_latency.Client(context)
+    process, log = collision_latency.start_node(params_path, DOMAIN_ID)
     try:
         data = serialize_pose_array(0, 0, 'world', frames[1])
         assert len(data) > 5.6e6
-        latency_bench.wait_ready(client, process, log, data, 1, time.perf_counter())
+        collision_latency.wait_ready(client, process, log, data, 1, time.perf_counter())
         clouds = []
         client.node.create_subscription(PointCloud2, 'collisions', clouds.append,
-                                        latency_bench.OUTPUT_QOS, raw=True)
+                                        collision_latency.OUTPUT_QOS, raw=True)
         for k in range(3):  # one at a time: the depth-1 queue keeps only the newest
             client.send(data, 2, k)
             assert client.wait(lambda: (2, k) in client.received, 60.0), 'no answer to %d' % k
         assert client.wait(lambda: len(clouds) >= 3, 10.0)
     finally:
-        latency_bench.stop_node(process, log)
+        collision_latency.stop_node(process, log)
         client.close()
         context.try_shutdown()
     contacts = cloud_to_contacts(deserialize_message(clouds[-1], PointCloud2))

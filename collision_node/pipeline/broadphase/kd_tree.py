@@ -37,9 +37,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node._jit import kernel
-from collision_node.broadphase.pair_buffer import emit_if, PairBuffer
-from collision_node.obb import overlap_across
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.broadphase.pair_buffer import emit_if, PairBuffer
+from collision_node.pipeline.obb import overlap_across
 
 LEAF_SIZE = 4           # boxes per leaf: fewer means deeper trees, more means more pair tests
 REBUILD_AREA_RATIO = 1.2  # rebuild when the refitted tree's relative area grew this much

@@ -5,11 +5,11 @@ holds:
 
 ``BroadPhase(settings)``
     ``settings`` is a :class:`Settings`; a phase reads only the fields it needs. The grid (and
-    ``auto``, for its grid) also takes a :class:`~collision_node.workers.Workers` to spread its
-    pair search over threads; the other phases run on the caller's thread.
+    ``auto``, for its grid) also takes a :class:`~collision_node.pipeline.workers.Workers` to
+    spread its pair search over threads; the other phases run on the caller's thread.
 ``set_static(boxes, n_static)``
     Called once per static scene. Static boxes are rows ``[0, n_static)`` of ``boxes``
-    (an :class:`collision_node.obb.Boxes`); a phase builds what depends on them here.
+    (an :class:`collision_node.pipeline.obb.Boxes`); a phase builds what depends on them here.
 ``find_pairs(boxes, n_static, n_dynamic, moved=None) -> (pairs, compared)``
     Called every tick; dynamic boxes are rows ``[n_static, n_static + n_dynamic)``.
     ``moved`` (bool per dynamic row, or None: all) says which dynamic boxes changed since the
@@ -36,12 +36,12 @@ docstrings; the numbers are in the README, "Broad phases").
 from numbers import Integral
 from typing import NamedTuple
 
-from collision_node.broadphase.brute_force import BruteForce
-from collision_node.broadphase.grid import Grid
-from collision_node.broadphase.kd_tree import KdTreePhase
-from collision_node.broadphase.octree import MAX_DEPTH, Octree
-from collision_node.broadphase.sphere import Sphere
-from collision_node.broadphase.sweep_and_prune import SweepAndPrune
+from collision_node.pipeline.broadphase.brute_force import BruteForce
+from collision_node.pipeline.broadphase.grid import Grid
+from collision_node.pipeline.broadphase.kd_tree import KdTreePhase
+from collision_node.pipeline.broadphase.octree import MAX_DEPTH, Octree
+from collision_node.pipeline.broadphase.sphere import Sphere
+from collision_node.pipeline.broadphase.sweep_and_prune import SweepAndPrune
 
 
 class Settings(NamedTuple):
@@ -79,7 +79,7 @@ def make_broad_phase(name, settings=Settings(), workers=None):
         raise ValueError('unknown broad phase %r; choose one of %s' % (name, ', '.join(NAMES)))
     check_settings(settings)
     if name == 'auto':
-        from collision_node.broadphase.auto import Auto
+        from collision_node.pipeline.broadphase.auto import Auto
         return Auto(settings, workers)
     if name == Grid.name:
         return Grid(settings, workers)

@@ -11,9 +11,9 @@ import array
 import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 
-from collision_node._jit import kernel
-from collision_node.cdr import point_cloud_parts, POINT_FIELD_DATATYPES
-from collision_node.contacts import CONTACT_DTYPE
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.contacts import CONTACT_DTYPE
+from collision_node.ros.cdr import point_cloud_parts, POINT_FIELD_DATATYPES
 
 # The cloud keeps CONTACT_DTYPE's names and order; floats narrow to float32 as DESIGN §3 fixes
 # (a step of 0.06 mm at 1 km from the origin), ids stay uint32.

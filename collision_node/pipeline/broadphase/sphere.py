@@ -9,7 +9,7 @@ of touching boxes. The same test runs before the SAT after any broad phase when 
 When to use: as the paper's baseline. Like brute force it is O(D·S + D²/2); the measured
 ``auto`` prefers brute force below ~60 bodies and the sweep or the grid above (README).
 """
-from collision_node.broadphase.brute_force import BruteForce
+from collision_node.pipeline.broadphase.brute_force import BruteForce
 
 
 class Sphere(BruteForce):

@@ -7,8 +7,8 @@ bodies come as id_a < id_b; rows are sorted by (id_a, type_b, id_b).
 """
 import numpy as np
 
-from collision_node._jit import kernel
-from collision_node.sat import COLLIDING
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.sat import COLLIDING
 
 DYNAMIC = 0  # body types, MoveIt's body_type convention
 STATIC = 1

@@ -3,9 +3,9 @@
 The baseline of both seed papers, O(D·S + D²/2) comparisons. The comparison is an AABB
 overlap test; the ``sphere`` phase runs the same loop with the bounding-sphere test.
 """
-from collision_node._jit import kernel
-from collision_node.broadphase.pair_buffer import emit, PairBuffer
-from collision_node.obb import overlap_across, spheres_apart
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.broadphase.pair_buffer import emit, PairBuffer
+from collision_node.pipeline.obb import overlap_across, spheres_apart
 
 CHUNK = 32  # rows tested together before any pair is stored
 

@@ -1,7 +1,7 @@
 """The collision_node ROS 2 node: dynamic poses in, colliding pairs out (DESIGN §3).
 
-A thin layer over :class:`collision_node.world.World`: it reads the PoseArray as raw CDR bytes
-(numpy, no per-pose Python), checks the input against the parameters, steps the World and
+A thin layer over :class:`~collision_node.pipeline.world.World`: it reads the PoseArray as raw
+CDR bytes (numpy, no per-pose Python), checks the input against the parameters, steps the World and
 writes the `collisions` cloud as raw CDR bytes too. Everything geometric lives in the World.
 
 Ticks. ``tick_rate_hz`` 0: each input is checked in the subscription callback. ``> 0``: the
@@ -24,7 +24,7 @@ broad time (the World's comparison with the last input).
 
 Markers are built only while ``~/markers`` has a subscriber, at most 30 times a second and
 at most a tenth of the node's time (see MARKER_COST_FACTOR). They are written as CDR bytes by
-:mod:`collision_node.markers` (numpy, ~0.2 µs a marker instead of rclpy's ~13 µs).
+:mod:`collision_node.ros.markers` (numpy, ~0.2 µs a marker instead of rclpy's ~13 µs).
 
 JIT. The kernels are compiled (or loaded from numba's cache) by a warm-up before the
 subscription exists, so no tick ever compiles. numba caches next to the sources when that
@@ -50,14 +50,14 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
-from collision_node import diagnostics, params
-from collision_node.broadphase import NAMES
-from collision_node.cdr import CdrError, parse_pose_array
-from collision_node.contacts import CONTACT_DTYPE
-from collision_node.markers import MarkerWriter
-from collision_node.memory import keep_heap_memory
-from collision_node.messages import CloudWriter
-from collision_node.world import warm_up, World
+from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.contacts import CONTACT_DTYPE
+from collision_node.pipeline.world import warm_up, World
+from collision_node.ros import diagnostics, params
+from collision_node.ros.cdr import CdrError, parse_pose_array
+from collision_node.ros.markers import MarkerWriter
+from collision_node.ros.memory import keep_heap_memory
+from collision_node.ros.messages import CloudWriter
 
 # Newest input wins (DESIGN §3); reliable, because Fast DDS delivers nothing best-effort once a
 # PoseArray passes ~512 KB. Overridable through the qos_overrides.* parameters.
@@ -273,7 +273,7 @@ class CollisionNode(Node):
 
 def main(args=None):
     """Run the node until shutdown; exit with status 2 on a bad parameter."""
-    keep_heap_memory()  # before the first large message: see collision_node.memory
+    keep_heap_memory()  # before the first large message: see collision_node.ros.memory
     try:
         rclpy.init(args=args)
     except RuntimeError as error:  # e.g. a params file rcl cannot parse

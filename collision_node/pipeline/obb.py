@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from collision_node._jit import kernel
+from collision_node.pipeline._jit import kernel
 
 # A quaternion whose norm is within this of 1 is normalised; farther off it is rejected.
 # 1e-3 accepts quaternions printed with 4+ significant digits or stored as float32, and

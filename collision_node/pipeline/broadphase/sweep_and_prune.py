@@ -23,9 +23,9 @@ many boxes overlap on any single axis.
 """
 import numpy as np
 
-from collision_node._jit import kernel
-from collision_node.broadphase.pair_buffer import emit_if, PairBuffer
-from collision_node.obb import overlap_across
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.broadphase.pair_buffer import emit_if, PairBuffer
+from collision_node.pipeline.obb import overlap_across
 
 AXIS_SWITCH_RATIO = 1.25   # another axis must spread this many times more to take over
 MAX_SWAPS_PER_BODY = 8     # insertion sort budget before falling back to a full sort

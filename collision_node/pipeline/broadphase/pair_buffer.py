@@ -6,7 +6,7 @@ and the kernel runs again, so the cost of growing is paid once per new maximum, 
 """
 import numpy as np
 
-from collision_node._jit import kernel
+from collision_node.pipeline._jit import kernel
 
 INITIAL_CAPACITY = 4096
 GROWTH = 1.5

@@ -23,7 +23,7 @@ from rclpy.serialization import serialize_message
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from collision_node.contacts import DYNAMIC
+from collision_node.pipeline.contacts import DYNAMIC
 
 STATIC_COLOR = (0.6, 0.6, 0.6, 0.5)      # r g b a
 FREE_COLOR = (0.2, 0.8, 0.2, 0.6)

@@ -17,11 +17,11 @@ the structures of the phase left, e.g. the grid's static table). The first tick,
 beyond a threshold by ``URGENT_MARGIN`` (100,000 bodies arriving while brute force runs: one
 such tick takes seconds), switch at once.
 """
-from collision_node._jit import kernel
-from collision_node.broadphase import make_broad_phase
-from collision_node.broadphase.brute_force import BruteForce
-from collision_node.broadphase.grid import Grid
-from collision_node.broadphase.sweep_and_prune import SweepAndPrune
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.broadphase import make_broad_phase
+from collision_node.pipeline.broadphase.brute_force import BruteForce
+from collision_node.pipeline.broadphase.grid import Grid
+from collision_node.pipeline.broadphase.sweep_and_prune import SweepAndPrune
 
 BRUTE_FORCE_WORK = 1500   # pair comparisons: brute force below (measured crossover ~1,000-2,000)
 GRID_BODIES = 700         # bodies: sweep and prune below, the grid above (crossover 500-1,000)

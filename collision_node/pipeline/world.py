@@ -4,8 +4,8 @@
     world.set_static(static_poses, static_half_extents)        # (S, 7), (S, 3)
     result = world.step(dynamic_poses, dynamic_half_extents)   # (D, 7), (D, 3) or (3,)
 
-Boxes live in one preallocated :class:`~collision_node.obb.Boxes`: static rows first (written
-once), dynamic rows after them (rewritten each tick), so a tick copies no static data.
+Boxes live in one preallocated :class:`~collision_node.pipeline.obb.Boxes`: static rows first
+(written once), dynamic rows after them (rewritten each tick), so a tick copies no static data.
 
 Rows are in spatial order, not in the order of the input: static row i holds the static box
 reported as ``static_ids[i]``, dynamic row ``n_static + i`` body ``dynamic_ids[i]``, the
@@ -24,14 +24,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node._jit import kernel
-from collision_node.broadphase import make_broad_phase, NAMES, Settings
-from collision_node.contacts import (  # noqa: F401 (DYNAMIC re-exported)
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.broadphase import make_broad_phase, NAMES, Settings
+from collision_node.pipeline.contacts import (  # noqa: F401 (DYNAMIC re-exported)
     assemble_contacts, CONTACT_DTYPE, DYNAMIC, merge_contacts, orient_pairs, STATIC)
-from collision_node.obb import Boxes, MAX_COORDINATE, set_boxes
-from collision_node.sat import collide_pairs, empty_output, INVALID
-from collision_node.scenes import uniform
-from collision_node.workers import Workers
+from collision_node.pipeline.obb import Boxes, MAX_COORDINATE, set_boxes
+from collision_node.pipeline.sat import collide_pairs, empty_output, INVALID
+from collision_node.pipeline.scenes import uniform
+from collision_node.pipeline.workers import Workers
 
 # Z-order curve resolution: 2**10 cells per axis over the bodies' bounding box (2**30 cells,
 # far more than bodies, so each cell holds a few at most).

@@ -24,10 +24,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node._jit import kernel
-from collision_node.broadphase.hash_map import HASH_MULTIPLIER  # Fibonacci hashing
-from collision_node.broadphase.pair_buffer import emit
-from collision_node.obb import aabbs_overlap
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.broadphase.hash_map import HASH_MULTIPLIER  # Fibonacci hashing
+from collision_node.pipeline.broadphase.pair_buffer import emit
+from collision_node.pipeline.obb import aabbs_overlap
 
 # Cell coordinates are packed into one int64 key with 21 bits per axis, so a lattice spans at
 # most 2**21 cells per axis around its origin; farther coordinates are clamped to the border.

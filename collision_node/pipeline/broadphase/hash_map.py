@@ -10,7 +10,7 @@ the low ones). The caller keeps the load at most 1/2; the functions assume a fre
 """
 import numpy as np
 
-from collision_node._jit import kernel
+from collision_node.pipeline._jit import kernel
 
 EMPTY = -1  # value of a free slot (values are indices, never negative)
 HASH_MULTIPLIER = np.uint64(0x9E3779B97F4A7C15)  # 2**64 / golden ratio
