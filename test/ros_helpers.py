@@ -251,6 +251,10 @@ BAD_YAML = {  # name the error must name: the params file
     # An integer where a double is declared: rclpy's type check, reported with the name.
     'input_timeout_s': GOOD_YAML + 'input_timeout_s: 2\n',
     'dynamic.half_extents': GOOD_YAML.replace('0.5, 0.6]', '0.5]'),
+    'ignored_pairs': GOOD_YAML + 'ignored_pairs: ["d0 sofa"]\n',
+    # A double where an integer is declared: rclpy's type check, reported with the name.
+    'table.collision_mask': GOOD_YAML.replace('table:\n', 'table:\n  collision_mask: 3.0\n'),
+    'margin': GOOD_YAML + 'margin: -0.5\n',
 }
 
 

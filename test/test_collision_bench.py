@@ -62,7 +62,7 @@ def test_markdown_tables_have_the_named_columns(tiny_run):
                    'most compared'):
         assert column in paper
     for heading in ('## Targets (DESIGN §5)', '## Paper 000', '## python-fcl side by side',
-                    '## Where a tick goes', '## Threads'):
+                    '## Where a tick goes', '## Threads', '## Margins and filters'):
         assert heading in markdown
 
 
@@ -72,6 +72,20 @@ def test_threads_section_finds_the_same_contacts_with_each_thread_count(tiny_run
     assert [row['threads'] for row in rows] == list(bench.THREAD_COUNTS)
     assert all('median_ms' in row for row in rows)
     assert len({(row['colliding_min'], row['colliding_max']) for row in rows}) == 1
+
+
+def test_margins_section_reports_more_pairs_for_larger_margins(tiny_run):
+    _, _, results = tiny_run
+    rows = results['margins']
+    assert [row['configuration'] for row in rows] == [
+        'margin 0 %', 'margin 2 %', 'margin 10 %', 'half masked']
+    plain, small, large, masked = rows
+    assert plain['near_pairs'] == masked['near_pairs'] == 0 < small['near_pairs']
+    assert small['near_pairs'] < large['near_pairs']
+    # A margin adds near pairs and keeps the colliding ones; masks only remove pairs.
+    assert plain['reported_pairs'] < small['reported_pairs'] < large['reported_pairs']
+    assert masked['filtered_pairs'] > 0 and masked['reported_pairs'] < plain['reported_pairs']
+    assert plain['vs_margin_0'] == 1.0
 
 
 def test_every_broad_phase_runs_in_every_mode(tiny_run):

@@ -2,7 +2,8 @@
 
 test_node.py's fresh-process check runs every broad phase on moving input; the check here runs
 the node's other tick paths (static colliders, no dynamic body, one size for all bodies, an
-unchanged input, sphere prefilter off, a collider disabled at run time) after the warm-up.
+unchanged input, sphere prefilter off, a collider disabled at run time, margins and collision
+filters set at run time) after the warm-up.
 
 Read-only installs are copies of the package that the test process cannot write to (for root,
 which ignores file modes, the child drops CAP_DAC_OVERRIDE before it starts).
@@ -63,6 +64,14 @@ for node in nodes:
                 assert node.set_parameters([Parameter('c0.enabled', value=enabled)])[0].successful
                 for t in (0.0, 0.5, 0.5, 1.0):  # 0.5 twice: the World reuses its answer
                     node._check(serialize_pose_array(1, 0, '', room.dynamic_poses(t)))
+    # Margins and filters: the World's own, a collider's, masks per body and ignored pairs.
+    for change in ([Parameter('margin', value=0.05)], [Parameter('c1.margin', value=0.1)],
+                   [Parameter('c2.collision_mask', value=6)],
+                   [Parameter('dynamic.collision_category', value=[1, 2] * 150)],
+                   [Parameter('ignored_pairs', value=['d0 d1', 'd3 c1'])]):
+        assert node.set_parameters(change)[0].successful
+        for t in (0.0, 0.5, 0.5):
+            node._check(serialize_pose_array(1, 0, '', room.dynamic_poses(t)))
         bad = room.dynamic_poses(0.0)
         bad[7, 2] = np.nan
         node._check(serialize_pose_array(1, 0, '', bad))

@@ -12,11 +12,14 @@ from collision_node.ros.messages import (CLOUD_DTYPE, cloud_to_contacts, CloudWr
                                          contacts_to_cloud, contacts_to_points,
                                          serialize_collisions)
 
-FLOAT_NAMES = ['x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth']
+FLOAT_NAMES = ['x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth', 'distance']
 ID_NAMES = ['id_a', 'type_a', 'id_b', 'type_b']
-# (name, offset, datatype, count) as DESIGN §3 specifies them.
-EXPECTED_FIELDS = [(name, 4 * i, PointField.FLOAT32, 1) for i, name in enumerate(FLOAT_NAMES)] \
-    + [(name, 28 + 4 * i, PointField.UINT32, 1) for i, name in enumerate(ID_NAMES)]
+# The point as DESIGN §3 specifies it: the fields added later (distance) come last.
+POINT_NAMES = FLOAT_NAMES[:7] + ID_NAMES + ['distance']
+POINT_STEP = 48
+# (name, offset, datatype, count) of each field.
+EXPECTED_FIELDS = [(name, 4 * i, PointField.FLOAT32 if name in FLOAT_NAMES else PointField.UINT32,
+                    1) for i, name in enumerate(POINT_NAMES)]
 
 
 def random_contacts(rng, count):
@@ -30,8 +33,10 @@ def random_contacts(rng, count):
 
 def naive_cloud_data(contacts):
     """Pack the points one at a time with struct."""
-    return b''.join(struct.pack('<7f4I', *(float(c[name]) for name in FLOAT_NAMES),
-                                *(int(c[name]) for name in ID_NAMES)) for c in contacts)
+    def value(contact, name):
+        return float(contact[name]) if name in FLOAT_NAMES else int(contact[name])
+    return b''.join(struct.pack('<7f4If', *(value(c, name) for name in POINT_NAMES))
+                    for c in contacts)
 
 
 def stamped_header(frame_id='world'):
@@ -47,7 +52,7 @@ def test_cloud_has_the_documented_layout(count):
     cloud = contacts_to_cloud(contacts, header)
     assert cloud.header == header
     assert (cloud.height, cloud.width, cloud.point_step, cloud.row_step) == (
-        1, count, 44, 44 * count)
+        1, count, POINT_STEP, POINT_STEP * count)
     assert cloud.is_dense and not cloud.is_bigendian
     assert [(f.name, f.offset, f.datatype, f.count) for f in cloud.fields] == EXPECTED_FIELDS
     assert bytes(cloud.data) == naive_cloud_data(contacts)
@@ -59,7 +64,7 @@ def test_round_trip_through_ros_serialisation(count):
     cloud = deserialize_message(serialize_message(contacts_to_cloud(contacts, Header())),
                                 PointCloud2)
     points = cloud_to_contacts(cloud)
-    assert points.dtype.names == tuple(FLOAT_NAMES + ID_NAMES)
+    assert points.dtype.names == tuple(POINT_NAMES)
     assert points.shape == (count,)
     for name in FLOAT_NAMES:
         assert points.dtype[name] == np.float32
@@ -114,13 +119,13 @@ def test_cloud_writer_reused_for_other_sizes_and_layouts():
         ours = writer.serialize(contacts, 1234, 5678, 'world')
         assert deserialize_message(ours, PointCloud2) == deserialize_message(reference,
                                                                              PointCloud2)
-        assert ours[-len(contacts) * 44 - 1:-1] == naive_cloud_data(contacts)
+        assert ours[-len(contacts) * POINT_STEP - 1:-1] == naive_cloud_data(contacts)
 
 
 def test_contacts_to_points_keeps_the_order_of_the_cloud():
     contacts = random_contacts(np.random.default_rng(4), 50)
     points = contacts_to_points(contacts)
-    assert points.dtype == CLOUD_DTYPE and CLOUD_DTYPE.itemsize == 44
+    assert points.dtype == CLOUD_DTYPE and CLOUD_DTYPE.itemsize == POINT_STEP
     assert points.tobytes() == naive_cloud_data(contacts)
 
 
@@ -148,16 +153,16 @@ XYZ_FIELDS = [('x', 0, PointField.FLOAT32, 1), ('y', 4, PointField.FLOAT32, 1),
 @pytest.mark.parametrize('cloud, reason', [
     (with_fields(XYZ_FIELDS), 'fields'),
     (with_fields(EXPECTED_FIELDS[:-1]), 'fields'),
-    (with_fields(EXPECTED_FIELDS + [('extra', 44, PointField.UINT32, 1)]), 'fields'),
+    (with_fields(EXPECTED_FIELDS + [('extra', POINT_STEP, PointField.UINT32, 1)]), 'fields'),
     (with_fields([('X',) + EXPECTED_FIELDS[0][1:]] + EXPECTED_FIELDS[1:]), 'fields'),
     (with_fields([EXPECTED_FIELDS[1], EXPECTED_FIELDS[0]] + EXPECTED_FIELDS[2:]), 'fields'),
     (with_fields(EXPECTED_FIELDS[:6] + [('depth', 24, PointField.FLOAT64, 1)]
                  + EXPECTED_FIELDS[7:]), 'fields'),
-    (with_fields(EXPECTED_FIELDS[:-1] + [('type_b', 40, PointField.UINT32, 2)]), 'fields'),
+    (with_fields(EXPECTED_FIELDS[:-1] + [('distance', 44, PointField.FLOAT32, 2)]), 'fields'),
     (with_changes(is_bigendian=True), 'big-endian'),
-    (with_changes(point_step=48, row_step=4 * 48), 'point_step'),
-    (with_changes(row_step=44 * 3), 'row_step'),
-    (with_changes(width=5, row_step=44 * 5), 'data bytes'),
+    (with_changes(point_step=POINT_STEP + 4, row_step=4 * (POINT_STEP + 4)), 'point_step'),
+    (with_changes(row_step=POINT_STEP * 3), 'row_step'),
+    (with_changes(width=5, row_step=POINT_STEP * 5), 'data bytes'),
     (with_changes(height=2), 'data bytes'),
 ])
 def test_clouds_that_are_not_collisions_clouds_are_rejected(cloud, reason):
@@ -176,7 +181,7 @@ def test_cloud_to_contacts_wants_a_point_cloud():
     (np.zeros(3, [(name, 'f8') for name in FLOAT_NAMES]), 'fields'),
     (np.zeros(3, [(name, 'f8') for name in FLOAT_NAMES] + [(name, 'i8') for name in ID_NAMES]),
      'unsigned'),
-    (np.zeros(3, [(name, 'u4') for name in FLOAT_NAMES + ID_NAMES]), 'float'),
+    (np.zeros(3, [(name, 'u4') for name in POINT_NAMES]), 'float'),
 ])
 def test_other_arrays_are_not_contacts(contacts, reason):
     with pytest.raises(ValueError, match=reason):

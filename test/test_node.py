@@ -31,7 +31,8 @@ def test_contacts_stamp_frame_and_diagnostics(harness):
     cloud = room.answer(41)
     check_room_contacts(cloud, EXPECTED, poses)
     assert [f.name for f in cloud.fields] == ['x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z',
-                                              'depth', 'id_a', 'type_a', 'id_b', 'type_b']
+                                              'depth', 'id_a', 'type_a', 'id_b', 'type_b',
+                                              'distance']
 
     status = room.status(lambda s: values(s)['ticks'] != '0')
     assert status.level == DiagnosticStatus.OK, status.message
@@ -120,7 +121,7 @@ def test_large_input_against_brute_force(harness, threads):
     assert len(expected) > 1000
     for field in ('id_a', 'type_a', 'id_b', 'type_b'):
         np.testing.assert_array_equal(contacts[field], expected[field])
-    for field in ('x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth'):
+    for field in ('x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth', 'distance'):
         np.testing.assert_allclose(contacts[field], expected[field], rtol=1e-6, atol=1e-5)
 
 

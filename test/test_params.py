@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from ros_helpers import BAD_YAML, GOOD_YAML, run_node, write_params
 
+from collision_node.pipeline.contacts import DYNAMIC as DYNAMIC_TYPE, STATIC as STATIC_TYPE
 from collision_node.ros import params
 from collision_node.ros.params import ParameterError
 
@@ -64,6 +65,23 @@ BAD = {
                     'positive'),
     'empty frame': ({'frame_id': ''}, 'frame_id', 'frame'),
     'string as double': ({'input_timeout_s': 'soon'}, 'input_timeout_s', 'double'),
+    'negative margin': ({'margin': -0.01}, 'margin', 'distance in [0'),
+    'NaN margin': ({'margin': math.nan}, 'margin', 'distance in [0'),
+    'negative collider margin': ({'table.margin': -1.0}, 'table.margin', 'distance in [0'),
+    'one-body ignored pair': ({'ignored_pairs': ['d0']}, 'ignored_pairs', 'two bodies'),
+    'three-body ignored pair': ({'ignored_pairs': ['d0 d1 d2']}, 'ignored_pairs', 'two bodies'),
+    'unknown collider in pair': ({'ignored_pairs': ['d0 chair']}, 'ignored_pairs',
+                                 "'chair' is neither"),
+    'negative index in pair': ({'ignored_pairs': ['d-1 table']}, 'ignored_pairs',
+                               'dynamic index -1'),
+    'fractional mask': ({'table.collision_mask': 1.5}, 'table.collision_mask', 'integer'),
+    'string category': ({'dynamic.collision_category': ['one']}, 'dynamic.collision_category',
+                        'integer[]'),
+    'empty dynamic masks': ({'dynamic.collision_mask': []}, 'dynamic.collision_mask',
+                            'one value'),
+    'mask beyond 64 bits': ({'table.collision_mask': 2**64}, 'table.collision_mask', '64-bit'),
+    'collider named like a body': ({'static_colliders': ['d3']}, 'static_colliders',
+                                   'dynamic body'),
 }
 
 
@@ -76,8 +94,11 @@ def test_defaults_are_the_design_table():
     assert parsed.colliders == ()
     assert (parsed.tick_rate_hz, parsed.input_timeout_s, parsed.max_bodies, parsed.threads,
             parsed.diagnostic_period_s) == (0.0, 1.0, 100000, 1, 1.0)
-    poses, extents, ids = parsed.static_scene()
+    assert parsed.margin == 0.0 and parsed.ignored_pairs == []
+    assert parsed.dynamic_collision_category == [1] and parsed.dynamic_collision_mask == [-1]
+    poses, extents, ids, margins, categories, masks = parsed.static_scene()
     assert poses.shape == (0, 7) and extents.shape == (0, 3) and ids.shape == (0,)
+    assert margins.shape == categories.shape == masks.shape == (0,)
 
 
 def test_named_colliders_keep_their_list_index():
@@ -86,11 +107,12 @@ def test_named_colliders_keep_their_list_index():
     np.testing.assert_array_equal(parsed.colliders[1].pose, SHELF['shelf.pose'])
     np.testing.assert_array_equal(parsed.colliders[0].half_extents, [0.6, 0.4, 0.02])
     assert [c.enabled for c in parsed.colliders] == [True, False]
-    poses, extents, ids = params.parse(
+    poses, extents, ids, margins, categories, masks = params.parse(
         dict(GOOD, static_colliders=['shelf', 'table'], **{'shelf.enabled': True,
                                                            'table.enabled': False})
     ).static_scene()
     assert ids.tolist() == [0]  # table is disabled; the shelf keeps index 0
+    assert (margins.tolist(), categories.tolist(), masks.tolist()) == ([0.0], [1], [-1])
     np.testing.assert_array_equal(poses[0], SHELF['shelf.pose'])
 
 
@@ -128,12 +150,27 @@ def test_run_time_changes():
     assert params.run_time_change(parsed, 'octree.max_depth', 4).octree_max_depth == 4
     assert params.run_time_change(parsed, 'sphere_prefilter', False).sphere_prefilter is False
     assert params.run_time_change(parsed, 'use_sim_time', True) == parsed  # not ours
+    assert params.run_time_change(parsed, 'margin', 0.1).margin == 0.1
+    changed = params.run_time_change(parsed, 'shelf.margin', 0.2)
+    assert [c.margin for c in changed.colliders] == [0.0, 0.2]
+    changed = params.run_time_change(parsed, 'table.collision_mask', 6)
+    assert [c.collision_mask for c in changed.colliders] == [6, -1]
+    changed = params.run_time_change(parsed, 'ignored_pairs', ['d3 shelf', 'd1 d0'])
+    assert changed.filters()[2].tolist() == [[3, 0, 1, 1], [1, 0, 0, 0]]
+    assert params.run_time_change(parsed, 'dynamic.collision_category',
+                                  [1, 2]).dynamic_collision_category == [1, 2]
     for name, value, words in (('broad_phase', 'nope', 'unknown broad phase'),
                                ('octree.max_depth', 11, 'depth'),
                                ('shelf.enabled', 1, 'bool'),
                                ('shelf.pose', [0.0] * 7, 'fixed at start'),
                                ('static_colliders', ['a'], 'fixed at start'),
-                               ('frame_id', 'map', 'fixed at start')):
+                               ('frame_id', 'map', 'fixed at start'),
+                               ('margin', -0.1, 'distance'),
+                               ('shelf.margin', math.inf, 'distance'),
+                               ('shelf.collision_category', 'all', 'integer'),
+                               ('dynamic.collision_mask', [1.5], 'integer'),
+                               ('ignored_pairs', ['d1 sofa'], 'neither'),
+                               ('ignored_pairs', ['d1-d2'], 'two bodies')):
         with pytest.raises(ParameterError, match=words) as raised:
             params.run_time_change(parsed, name, value)
         assert raised.value.name == name
@@ -182,6 +219,32 @@ def test_default_config_is_the_demo_room(context):
             scenes.ROOM_HALF_EXTENTS)
         assert node.get_parameter('broad_phase').value == 'auto'
         assert node.get_parameter('frame_id').value == 'world'
+    finally:
+        node.destroy_node()
+
+
+def test_arm_config_is_the_arm_scene(context):
+    import rclpy
+    from collision_node.pipeline import scenes
+    from collision_node.ros.node import CollisionNode
+    rclpy.init(args=['--ros-args', '--params-file', str(REPO / 'config' / 'arm.yaml')],
+               context=context, domain_id=DOMAIN_ID)
+    node = CollisionNode(context=context)
+    try:
+        scene = scenes.make_scene('arm', scenes.ARM_LINK_COUNT)
+        assert node.get_parameter('static_colliders').value == list(scenes.ARM_STATICS)
+        for name, (pose, extents) in scenes.ARM_STATICS.items():
+            assert list(node.get_parameter(name + '.pose').value) == list(pose)
+            assert list(node.get_parameter(name + '.half_extents').value) == list(extents)
+        assert list(node.get_parameter('dynamic.half_extents').value) == \
+            scene.dynamic_half_extents.ravel().tolist()
+        assert node.get_parameter('margin').value == 0.05
+        # Every pair of neighbouring links is ignored, and the base on the floor.
+        rows = params.ignored_pair_rows(node.get_parameter('ignored_pairs').value,
+                                        list(scenes.ARM_STATICS))
+        assert sorted(map(tuple, rows.tolist())) == sorted(
+            [(link, DYNAMIC_TYPE, link + 1, DYNAMIC_TYPE)
+             for link in range(scenes.ARM_LINK_COUNT - 1)] + [(0, DYNAMIC_TYPE, 0, STATIC_TYPE)])
     finally:
         node.destroy_node()
 

@@ -28,14 +28,18 @@ from collision_node.benchmarks.runs import (
 from collision_node.benchmarks.stages import profile_stages
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import make_scene
-from collision_node.pipeline.world import warm_up
+from collision_node.pipeline.world import warm_up, World
 
 OCTREE_DEPTHS = tuple(range(1, 10))  # paper 001's Table 1
 PAPER000_OCTREE_DEPTH = 4            # paper 000's octree ran at depth 4
 DEFAULT_PHASE = 'auto'               # what the node uses unless told otherwise
 SECTIONS = ('paper001', 'octree_depths', 'paper000', 'scenes', 'accuracy', 'fcl', 'profile',
-            'threads')
+            'threads', 'margins')
 THREAD_COUNTS = (1, 2)  # the World's threads: this machine's cores
+# The margins section: margins as fractions of the mean box size (its full side), and one run
+# with half the dynamic pairs masked out (categories 1 and 2 in turn, each accepting its own).
+MARGIN_FRACTIONS = (0.0, 0.02, 0.1)
+MARGIN_ROUNDS = 5  # the configurations take turns, a few ticks each, so noise hits all alike
 
 
 class Plan(NamedTuple):
@@ -53,6 +57,7 @@ class Plan(NamedTuple):
     fcl_sizes: tuple           # (bodies, ticks) on the uniform scene
     profile_sizes: tuple       # (scene, bodies, ticks, dt): the targets' scenes
     thread_sizes: tuple        # (bodies, ticks): uniform scene, default phase, 1 and 2 threads
+    margin_sizes: tuple        # (bodies, ticks per configuration): uniform scene, margins
     budget_s: float            # a run stops early (marked truncated) after this wall time
     # A run expected to take longer per tick is skipped; one stops after a tick that took
     # longer. Keep it >= 1 s: then a skipped run misses every DESIGN §5 target even if its
@@ -79,6 +84,7 @@ PLANS = {
         profile_sizes=(('flying_out', 1024, 300, DT), ('uniform', 10000, 120, DT),
                        ('uniform', 100000, 30, DT)),
         thread_sizes=((10000, 120), (100000, 30)),
+        margin_sizes=((1000, 200), (10000, 100)),
         budget_s=120.0, max_tick_s=5.0),
     'quick': Plan(
         flying_out_sizes=(128, 256, 512, 1024), flying_out_ticks=60, flying_out_dt=5.0 / 60,
@@ -93,6 +99,7 @@ PLANS = {
         profile_sizes=(('flying_out', 1024, 60, 5.0 / 60), ('uniform', 10000, 20, DT),
                        ('uniform', 100000, 5, DT)),
         thread_sizes=((10000, 40), (100000, 10)),
+        margin_sizes=((1000, 100), (10000, 40)),
         budget_s=3.0, max_tick_s=1.0),
     # For the tests: every section on small scenes, in seconds.
     'tiny': Plan(
@@ -104,6 +111,7 @@ PLANS = {
         fcl_sizes=((300, 3),),
         profile_sizes=(('flying_out', 128, 5, 0.5), ('uniform', 1000, 3, DT)),
         thread_sizes=((1000, 3),),
+        margin_sizes=((300, 5),),
         budget_s=5.0, max_tick_s=1.0),
 }
 
@@ -374,6 +382,56 @@ class Bench:
                     scene, ticks, DT, 'threads uniform n=%d threads=%d' % (bodies, threads),
                     {'scene': 'uniform', 'bodies': bodies, 'broad_phase': DEFAULT_PHASE,
                      'threads': threads}, broad_phase=DEFAULT_PHASE, threads=threads))
+        return rows
+
+    def margins(self):
+        """Time margins of 0, 2 % and 10 % of the box size, and half the pairs masked out.
+
+        The configurations take turns in rounds on the same ticks of the uniform scene (half
+        static, default phase), so that a slow minute of the machine hits them all alike.
+        """
+        rows = []
+        for bodies, ticks in self.plan.margin_sizes:
+            scene = self.scene('uniform', bodies)
+            size = 2.0 * float(np.mean(scene.dynamic_half_extents))  # the mean box side
+            half = np.arange(scene.dynamic_count) % 2 + 1
+            configurations = [('margin %g %%' % (100 * f), {'margin': f * size}, None)
+                              for f in MARGIN_FRACTIONS]
+            configurations.append(('half masked', {'margin': 0.0}, half))
+            worlds = []
+            for _, options, categories in configurations:
+                world = World(broad_phase=DEFAULT_PHASE, **options)
+                world.set_static(scene.static_poses, scene.static_half_extents)
+                if categories is not None:
+                    world.set_filters(categories=categories, masks=categories)
+                worlds.append(world)
+            samples = [[] for _ in configurations]
+            per_round = max(1, ticks // MARGIN_ROUNDS)
+            for first in range(0, per_round * MARGIN_ROUNDS, per_round):
+                for world, times in zip(worlds, samples):
+                    for tick in range(first, first + per_round):
+                        poses = scene.dynamic_poses(tick * DT)
+                        before = time.perf_counter()
+                        result = world.step(poses, scene.dynamic_half_extents)
+                        times.append((1e3 * (time.perf_counter() - before), result.stats))
+            for (label, options, _), times in zip(configurations, samples):
+                stats = [s for _, s in times]
+                rows.append({
+                    'scene': 'uniform', 'bodies': bodies, 'configuration': label,
+                    'margin_m': options['margin'], 'ticks': len(times),
+                    'median_ms': float(np.median([ms for ms, _ in times])),
+                    'reported_pairs': float(np.mean([s['colliding_pairs'] + s['near_pairs']
+                                                     for s in stats])),
+                    'near_pairs': float(np.mean([s['near_pairs'] for s in stats])),
+                    'filtered_pairs': float(np.mean([s['filtered_pairs'] for s in stats])),
+                    'sat_tests': float(np.mean([s['sat_tests'] for s in stats]))})
+                self.progress('margins n=%d %s: %.3f ms' % (bodies, label,
+                                                            rows[-1]['median_ms']))
+            base = rows[-len(configurations)]['median_ms']
+            for row in rows[-len(configurations):]:
+                row['vs_margin_0'] = row['median_ms'] / base
+            for world in worlds:
+                world.close()
         return rows
 
     def _quickest_phase(self, scene_name, bodies):

@@ -1,14 +1,16 @@
-"""Contacts: the colliding pairs of a tick as one structured array, in the cloud's order.
+"""Contacts: the reported pairs of a tick as one structured array, in the cloud's order.
 
 Fields, ids and order are those of the ``collisions`` PointCloud2 (README, "The collisions
 cloud"), with float64 instead of float32: body A is always dynamic; ``type`` is DYNAMIC (id =
 index in the PoseArray) or STATIC (id = index in the ``static_colliders`` list); two dynamic
-bodies come as id_a < id_b; rows are sorted by (id_a, type_b, id_b).
+bodies come as id_a < id_b; rows are sorted by (id_a, type_b, id_b). A pair is reported when
+it collides (``distance`` = −``depth`` ≤ 0) or lies within its margin (``distance`` > 0,
+``depth`` 0).
 """
 import numpy as np
 
 from collision_node.pipeline._jit import kernel
-from collision_node.pipeline.sat import COLLIDING
+from collision_node.pipeline.sat import COLLIDING, NEAR
 
 DYNAMIC = 0  # body types, MoveIt's body_type convention
 STATIC = 1
@@ -18,6 +20,7 @@ CONTACT_DTYPE = np.dtype([
     ('normal_x', np.float64), ('normal_y', np.float64), ('normal_z', np.float64),
     ('depth', np.float64),
     ('id_a', np.uint32), ('type_a', np.uint32), ('id_b', np.uint32), ('type_b', np.uint32),
+    ('distance', np.float64),
 ])
 
 # Contacts of one body are sorted by insertion sort up to this many, by np.argsort beyond
@@ -27,7 +30,7 @@ INSERTION_SORT_MAX = 32
 
 def assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids,
                       dynamic_ids=None):
-    """Return the COLLIDING rows of the SAT's output as a sorted CONTACT_DTYPE array.
+    """Return the COLLIDING and NEAR rows of the SAT's output as a sorted CONTACT_DTYPE array.
 
     ``pairs`` are box rows (static rows first, then dynamic); ``static_ids`` maps a static
     row to the collider id reported for it, ``dynamic_ids`` (default: the identity) a dynamic
@@ -102,7 +105,7 @@ def _count_by_body(pairs, status, n_static, dynamic_ids, ends, colliding):
     for k in range(pairs.shape[0]):
         # Counted and listed without a branch: a pair collides or not at random (measured
         # ~2x faster).
-        hit = status[k] == COLLIDING
+        hit = (status[k] == COLLIDING) | (status[k] == NEAR)
         ends[dynamic_ids[pairs[k, 0] - n_static] + 1] += hit
         colliding[count] = k
         count += hit
@@ -130,6 +133,7 @@ def _assemble(pairs, colliding, depth, normal, point, n_static, static_ids, dyna
         out[row].normal_y = normal[k, 1]
         out[row].normal_z = normal[k, 2]
         out[row].depth = max(depth[k], 0.0)
+        out[row].distance = -depth[k]  # a NEAR pair's depth is minus its distance
         out[row].id_a = body
         out[row].type_a = DYNAMIC
         out[row].id_b = static_ids[b] if b < n_static else dynamic_ids[b - n_static]

@@ -56,6 +56,9 @@ class Boxes:
         self.half_extents = np.zeros((capacity, 3))
         self.aabbs = np.zeros((capacity, 2, 3))
         self.radii = np.zeros(capacity)
+        # A box's own safety margin (a static collider's ``margin``; 0 for dynamic bodies):
+        # the SAT adds both boxes' to the World's margin.
+        self.margins = np.zeros(capacity)
 
     @property
     def capacity(self):
@@ -64,7 +67,7 @@ class Boxes:
     def grown(self, capacity, keep):
         """Return storage for ``capacity`` boxes holding a copy of the first ``keep``."""
         bigger = Boxes(capacity)
-        for name in ('centers', 'rotations', 'half_extents', 'aabbs', 'radii'):
+        for name in ('centers', 'rotations', 'half_extents', 'aabbs', 'radii', 'margins'):
             getattr(bigger, name)[:keep] = getattr(self, name)[:keep]
         return bigger
 
@@ -149,6 +152,22 @@ def _write_boxes(poses, half_extents, start, rows, centers, rotations, extents, 
             aabbs[b, 0, k] = centers[b, k] - reach
             aabbs[b, 1, k] = centers[b, k] + reach
     return -1, VALID
+
+
+@kernel
+def pad_bounds(aabbs, radii, margins, start, stop, pad):
+    """Grow the AABB and bounding radius of rows [start, stop) by ``pad`` + the row's margin.
+
+    Boxes within distance m of each other have AABBs within m of each other on every axis
+    (and bounding spheres within m): padding both boxes of a pair by half its margin lets the
+    broad phase and the sphere test keep every pair the margin may report.
+    """
+    for row in range(start, stop):
+        grow = pad + margins[row]
+        for k in range(3):
+            aabbs[row, 0, k] -= grow
+            aabbs[row, 1, k] += grow
+        radii[row] += grow
 
 
 @kernel

@@ -58,16 +58,18 @@ import math
 import numpy as np
 
 from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.distance import box_distance
+from collision_node.pipeline.frames import (column, cross, dot, edge_overlap, face_a_overlap,
+                                            face_b_overlap, matrix, MIN_EDGE_AXIS_LENGTH,
+                                            relative_pose, rotate, sum_abs, zero_if_finite,
+                                            zero_if_finite_matrix)
 from collision_node.pipeline.obb import EPS, spheres_apart, TIE_ULPS
 
 SEPARATED = 0
 COLLIDING = 1
 INVALID = 2  # a NaN or Inf reached the test: it claims neither verdict
+NEAR = 3     # apart, but within the pair's margin (exact distance)
 
-# Two edges whose cross product is shorter than this are parallel: their axis is the zero
-# vector and the face axes already decide the pair. Any longer cross product is a valid axis,
-# however noisy its direction (SAT holds for every direction).
-MIN_EDGE_AXIS_LENGTH = 1e-150
 # A box axis this close to perpendicular to the normal counts as lying flat on it when the
 # contact feature is picked, so a face lying on a face yields the middle of that face.
 FEATURE_TOLERANCE = 1e-9
@@ -89,13 +91,20 @@ def touch_tolerance(center_a, center_b, half_extents_a, half_extents_b):
 
 
 def collide_pairs(centers, rotations, half_extents, radii, pairs, sphere_prefilter=False,
-                  out=None):
+                  out=None, margin=0.0, box_margins=None):
     """Run the SAT on each row ``(a, b)`` of ``pairs`` (P, 2).
 
     Returns ``(status, depth, normal, point, sat_tests)``: status (P,) int8 SEPARATED,
-    COLLIDING or INVALID; depth (P,), normal (P, 3) and point (P, 3) valid where COLLIDING;
-    ``sat_tests`` the number of pairs that reached the SAT (the rest failed the sphere test).
-    The four arrays are the first P rows of ``out`` when given (see :func:`empty_output`).
+    COLLIDING, NEAR or INVALID; depth (P,), normal (P, 3) and point (P, 3) valid where
+    COLLIDING or NEAR; ``sat_tests`` the number of pairs that reached the SAT (the rest failed
+    the sphere test). The four arrays are the first P rows of ``out`` when given (see
+    :func:`empty_output`).
+
+    Margin: a pair of boxes apart by at most ``margin`` + ``box_margins[a]`` +
+    ``box_margins[b]`` (exact Euclidean distance) is NEAR; its depth is minus that distance,
+    its normal the unit vector from A's closest point to B's, its point their midpoint. The
+    radii (for the sphere test) must include the margins (obb.pad_bounds). With no margin the
+    result is bit for bit that of the plain SAT.
     """
     pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
     n = len(pairs)
@@ -104,9 +113,44 @@ def collide_pairs(centers, rotations, half_extents, radii, pairs, sphere_prefilt
     if out is None or len(out[0]) < n:
         out = empty_output(n)
     status, depth, normal, point = (array[:n] for array in out)
+    with_margins = box_margins is not None
+    if not with_margins:
+        box_margins = _NO_MARGINS
     sat_tests = _collide_pairs(centers, rotations, half_extents, radii, pairs,
-                               bool(sphere_prefilter), status, depth, normal, point)
+                               bool(sphere_prefilter), float(margin), box_margins, with_margins,
+                               status, depth, normal, point)
     return status, depth, normal, point, sat_tests
+
+
+def signed_distance(center_a, rotation_a, half_extents_a, center_b, rotation_b,
+                    half_extents_b):
+    """Return ``(distance, point_a, point_b)`` of two boxes, by the World's own code path.
+
+    Centres (3,), rotation matrices (3, 3) with the box axes as columns, half extents (3,).
+    Apart: the exact distance (> 0) and the closest points of A and B. Touching or
+    overlapping: minus the penetration depth (≤ 0), both points the contact point. This is
+    :func:`collide_pairs` with an infinite margin. Raises ValueError on bad shapes or NaN/Inf.
+    """
+    arrays = []
+    for name, value, shape in (('center_a', center_a, (3,)), ('center_b', center_b, (3,)),
+                               ('rotation_a', rotation_a, (3, 3)),
+                               ('rotation_b', rotation_b, (3, 3)),
+                               ('half_extents_a', half_extents_a, (3,)),
+                               ('half_extents_b', half_extents_b, (3,))):
+        array = np.asarray(value, dtype=np.float64)
+        if array.shape != shape or not np.all(np.isfinite(array)):
+            raise ValueError('%s must be finite with shape %s, got %r' % (name, shape, value))
+        arrays.append(array)
+    center_a, center_b, rotation_a, rotation_b, half_extents_a, half_extents_b = arrays
+    status, depth, normal, point, _ = collide_pairs(
+        np.array([center_a, center_b]), np.array([rotation_a, rotation_b]),
+        np.array([half_extents_a, half_extents_b]), np.zeros(2), np.array([[0, 1]]),
+        margin=math.inf)
+    if status[0] == INVALID:
+        raise ValueError('the boxes are too far apart for float64')
+    distance = -depth[0]
+    gap = 0.5 * max(distance, 0.0) * normal[0]
+    return distance, point[0] - gap, point[0] + gap
 
 
 def empty_output(capacity):
@@ -119,192 +163,118 @@ def empty_output(capacity):
             np.empty((capacity, 3)))
 
 
-# Speed notes. The per-pair helpers take and return tuples of floats, never arrays: numba
-# reference-counts every array handed to a function it does not inline (two atomic operations
-# per array per call), which cost more than the whole SAT. And each helper that indexes a
-# tuple is called with constant indices, so that it is inlined and the indexing resolved at
-# compile time; a tuple indexed at run time compiles to a branch per element.
-#
-# Notation: R = AᵀB as a row-major 9-tuple, R[3i + j] = a_i·b_j (column j is B's axis j in
-# A's frame); t = Aᵀ(c_B − c_A), B's centre in A's frame; ea, eb the half extents.
+# Notation and speed notes: frames.py. R = AᵀB as a row-major 9-tuple (``rel``), t = B's
+# centre in A's frame; ea, eb the half extents.
+
+_NO_MARGINS = np.zeros(1)
+
 
 @kernel
-def _collide_pairs(centers, rotations, extents, radii, pairs, sphere_prefilter,
-                   status, depth, normal, point):
+def _collide_pairs(centers, rotations, extents, radii, pairs, sphere_prefilter, margin,
+                   box_margins, with_margins, status, depth, normal, point):
     sat_tests = 0
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
         b = pairs[k, 1]
         ea = (extents[a, 0], extents[a, 1], extents[a, 2])
         eb = (extents[b, 0], extents[b, 1], extents[b, 2])
-        ra = _matrix(rotations, a)
-        rb = _matrix(rotations, b)
+        ra = matrix(rotations, a)
+        rb = matrix(rotations, b)
         if sphere_prefilter and spheres_apart(centers, radii, a, b):
             # NaN centres and radii never pass the sphere test; the rest is checked here.
-            finite = _zero_if_finite_matrix(ra) + _zero_if_finite_matrix(rb) \
-                + _zero_if_finite(ea) + _zero_if_finite(eb) == 0.0
+            finite = zero_if_finite_matrix(ra) + zero_if_finite_matrix(rb) \
+                + zero_if_finite(ea) + zero_if_finite(eb) == 0.0
             status[k] = SEPARATED if finite else INVALID
             continue
         sat_tests += 1
         d = (centers[b, 0] - centers[a, 0], centers[b, 1] - centers[a, 1],
              centers[b, 2] - centers[a, 2])
-        rel, t = _relative_pose(ra, rb, d)
+        rel, t = relative_pose(ra, rb, d)
         # Every input reaches ea, eb, d, R (all entries of both rotations) or t: a NaN or an
         # Inf anywhere, or an overflow, shows up here.
-        scale = _sum_abs(ea) + _sum_abs(eb) + _sum_abs(d)
+        scale = sum_abs(ea) + sum_abs(eb) + sum_abs(d)
         if not (math.isfinite(scale)
-                and _zero_if_finite_matrix(rel) + _zero_if_finite(t) == 0.0):
+                and zero_if_finite_matrix(rel) + zero_if_finite(t) == 0.0):
             status[k] = INVALID
             continue
         tie = TIE_ULPS * EPS * scale
-        status[k], depth[k], axis_id = _separating_axis_test(rel, t, ea, eb, tie)
+        pair_margin = margin + box_margins[a] + box_margins[b] if with_margins else margin
+        status[k], depth[k], axis_id = _separating_axis_test(rel, t, ea, eb, tie, pair_margin)
         if status[k] == COLLIDING:
             axis, local_point = _contact(rel, t, ea, eb, tie, axis_id)
-            world_normal = _rotate(ra, axis)
-            world_offset = _rotate(ra, local_point)
-            for m in range(3):
-                normal[k, m] = world_normal[m]
-                point[k, m] = centers[a, m] + world_offset[m]
+        elif status[k] == NEAR:
+            distance, on_a, on_b = box_distance(rel, t, ea, eb)
+            if not distance <= pair_margin:
+                status[k] = SEPARATED
+                continue
+            depth[k] = -distance
+            axis = _unit_axis(rel, t, axis_id) if distance == 0.0 else (
+                (on_b[0] - on_a[0]) / distance, (on_b[1] - on_a[1]) / distance,
+                (on_b[2] - on_a[2]) / distance)
+            local_point = (0.5 * (on_a[0] + on_b[0]), 0.5 * (on_a[1] + on_b[1]),
+                           0.5 * (on_a[2] + on_b[2]))
+        else:
+            continue
+        world_normal = rotate(ra, axis)
+        world_offset = rotate(ra, local_point)
+        for m in range(3):
+            normal[k, m] = world_normal[m]
+            point[k, m] = centers[a, m] + world_offset[m]
     return sat_tests
 
 
 @kernel
-def _matrix(rotations, a):
-    """Return box ``a``'s rotation matrix as a row-major 9-tuple."""
-    return (rotations[a, 0, 0], rotations[a, 0, 1], rotations[a, 0, 2],
-            rotations[a, 1, 0], rotations[a, 1, 1], rotations[a, 1, 2],
-            rotations[a, 2, 0], rotations[a, 2, 1], rotations[a, 2, 2])
-
-
-@kernel
-def _zero_if_finite(v):
-    """Return 0 when the 3-tuple ``v`` is finite, else NaN (x · 0 is NaN for NaN and ±Inf).
-
-    Written out, not looped: a loop over a tuple compiles to an indirect jump per element
-    (measured: 15 % of the whole SAT), and a sum of x · 0 cannot overflow.
-    """
-    return v[0] * 0.0 + v[1] * 0.0 + v[2] * 0.0
-
-
-@kernel
-def _zero_if_finite_matrix(m):
-    """:func:`_zero_if_finite` for a row-major 9-tuple."""
-    return _zero_if_finite(m[0:3]) + _zero_if_finite(m[3:6]) + _zero_if_finite(m[6:9])
-
-
-@kernel
-def _sum_abs(v):
-    return abs(v[0]) + abs(v[1]) + abs(v[2])
-
-
-@kernel
-def _rotate(matrix, v):
-    """Return ``matrix`` (a row-major 9-tuple) times ``v``."""
-    return (matrix[0] * v[0] + matrix[1] * v[1] + matrix[2] * v[2],
-            matrix[3] * v[0] + matrix[4] * v[1] + matrix[5] * v[2],
-            matrix[6] * v[0] + matrix[7] * v[1] + matrix[8] * v[2])
-
-
-@kernel
-def _relative_pose(ra, rb, d):
-    """R = AᵀB and t = Aᵀd from the world rotations (row-major) and d = c_B − c_A."""
-    rel = (_column_dot(ra, 0, rb, 0), _column_dot(ra, 0, rb, 1), _column_dot(ra, 0, rb, 2),
-           _column_dot(ra, 1, rb, 0), _column_dot(ra, 1, rb, 1), _column_dot(ra, 1, rb, 2),
-           _column_dot(ra, 2, rb, 0), _column_dot(ra, 2, rb, 1), _column_dot(ra, 2, rb, 2))
-    t = (ra[0] * d[0] + ra[3] * d[1] + ra[6] * d[2],
-         ra[1] * d[0] + ra[4] * d[1] + ra[7] * d[2],
-         ra[2] * d[0] + ra[5] * d[1] + ra[8] * d[2])
-    return rel, t
-
-
-@kernel
-def _column_dot(ra, i, rb, j):
-    return ra[i] * rb[j] + ra[3 + i] * rb[3 + j] + ra[6 + i] * rb[6 + j]
-
-
-@kernel
-def _column(rel, j):
-    """Return B's axis j in A's frame."""
-    return rel[j], rel[3 + j], rel[6 + j]
-
-
-@kernel
-def _dot(u, v):
-    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
-
-
-@kernel
-def _separating_axis_test(rel, t, ea, eb, tie):
+def _separating_axis_test(rel, t, ea, eb, tie, margin):
     """Return (status, overlap, axis number) of the pair, in A's frame.
 
-    Separated: the (negative) overlap on the first separating axis found. Colliding: the
-    least overlap and its axis.
+    Separated: the (negative) overlap on the first axis found that separates the boxes by
+    more than ``margin``. Near: no axis separates them by more than ``margin`` but some does
+    (the widest gap, negated, and its axis; the exact distance is at least that gap).
+    Colliding: the least overlap and its axis. With ``margin`` 0 nothing is near.
     """
-    faces = (_face_a_overlap(rel, t, ea, eb, 0), _face_a_overlap(rel, t, ea, eb, 1),
-             _face_a_overlap(rel, t, ea, eb, 2), _face_b_overlap(rel, t, ea, eb, 0),
-             _face_b_overlap(rel, t, ea, eb, 1), _face_b_overlap(rel, t, ea, eb, 2))
+    faces = (face_a_overlap(rel, t, ea, eb, 0), face_a_overlap(rel, t, ea, eb, 1),
+             face_a_overlap(rel, t, ea, eb, 2), face_b_overlap(rel, t, ea, eb, 0),
+             face_b_overlap(rel, t, ea, eb, 1), face_b_overlap(rel, t, ea, eb, 2))
     best = np.inf
     best_id = 0
     axis_id = 0
+    widest_gap = 0.0  # the widest separation within the margin, and its axis
+    gap_id = 0
     for overlap in faces:
         if overlap < 0.0:
-            return SEPARATED, overlap, axis_id
-        if overlap < best:
+            if overlap < -margin:
+                return SEPARATED, overlap, axis_id
+            if -overlap > widest_gap:
+                widest_gap, gap_id = -overlap, axis_id
+        elif overlap < best:
             best, best_id = overlap, axis_id
         axis_id += 1
     # Face axes win ties: an edge axis has to beat them by the touching tolerance.
     best_face = best
-    edges = (_edge_overlap(rel, t, ea, eb, 0, 0), _edge_overlap(rel, t, ea, eb, 0, 1),
-             _edge_overlap(rel, t, ea, eb, 0, 2), _edge_overlap(rel, t, ea, eb, 1, 0),
-             _edge_overlap(rel, t, ea, eb, 1, 1), _edge_overlap(rel, t, ea, eb, 1, 2),
-             _edge_overlap(rel, t, ea, eb, 2, 0), _edge_overlap(rel, t, ea, eb, 2, 1),
-             _edge_overlap(rel, t, ea, eb, 2, 2))
+    edges = (edge_overlap(rel, t, ea, eb, 0, 0), edge_overlap(rel, t, ea, eb, 0, 1),
+             edge_overlap(rel, t, ea, eb, 0, 2), edge_overlap(rel, t, ea, eb, 1, 0),
+             edge_overlap(rel, t, ea, eb, 1, 1), edge_overlap(rel, t, ea, eb, 1, 2),
+             edge_overlap(rel, t, ea, eb, 2, 0), edge_overlap(rel, t, ea, eb, 2, 1),
+             edge_overlap(rel, t, ea, eb, 2, 2))
     for overlap, length_sq in edges:
         # overlap is scaled by the axis length: its sign needs no normalising, and
         # overlap / length < limit is compared squared (both sides >= 0) without a root.
         if overlap < 0.0:
-            return SEPARATED, overlap / math.sqrt(length_sq), axis_id
+            gap = -overlap / math.sqrt(length_sq)
+            if gap > margin:
+                return SEPARATED, -gap, axis_id
+            if gap > widest_gap:
+                widest_gap, gap_id = gap, axis_id
+            axis_id += 1
+            continue
         limit = min(best, best_face - tie)
         if (length_sq >= MIN_EDGE_AXIS_LENGTH ** 2 and limit > 0.0
                 and overlap * overlap < limit * limit * length_sq):
             best, best_id = overlap / math.sqrt(length_sq), axis_id
         axis_id += 1
+    if widest_gap > 0.0:
+        return NEAR, -widest_gap, gap_id
     return COLLIDING, best, best_id
-
-
-@kernel
-def _face_a_overlap(rel, t, ea, eb, i):
-    radius_b = eb[0] * abs(rel[3 * i]) + eb[1] * abs(rel[3 * i + 1]) + eb[2] * abs(rel[3 * i + 2])
-    return ea[i] + radius_b - abs(t[i])
-
-
-@kernel
-def _face_b_overlap(rel, t, ea, eb, j):
-    b_j = _column(rel, j)
-    radius_a = ea[0] * abs(b_j[0]) + ea[1] * abs(b_j[1]) + ea[2] * abs(b_j[2])
-    return radius_a + eb[j] - abs(_dot(t, b_j))
-
-
-@kernel
-def _edge_overlap(rel, t, ea, eb, i, j):
-    """Return (overlap × |L|, |L|²) on the axis L = e_i × b_j, not normalised.
-
-    In A's frame L = (0, −R[i2, j], R[i1, j]) in the order (i, i1, i2) = (i, i+1, i+2 mod 3):
-    straight from R, so the cross product adds no rounding.
-    """
-    i1 = (i + 1) % 3
-    i2 = (i + 2) % 3
-    u1 = -rel[3 * i2 + j]
-    u2 = rel[3 * i1 + j]
-    radius_a = ea[i1] * abs(u1) + ea[i2] * abs(u2)
-    # B's radius from the full dot products L·b_m, not from the cofactor identity
-    # (e_i × b_j)·b_m = ±R[i, k]: that identity needs an exactly orthonormal B and is off by
-    # eps/|L| for near-parallel edges. The term m = j is exactly 0 (u1·u2 − u2·u1).
-    radius_b = 0.0
-    for m in range(3):
-        if m != j:
-            radius_b += eb[m] * abs(u1 * rel[3 * i1 + m] + u2 * rel[3 * i2 + m])
-    return radius_a + radius_b - abs(u1 * t[i1] + u2 * t[i2]), u1 * u1 + u2 * u2
 
 
 @kernel
@@ -317,20 +287,28 @@ def _sign_of(x):
 
 
 @kernel
-def _contact(rel, t, ea, eb, tie, axis_id):
-    """Return the unit axis (A → B) and the contact point, in A's frame."""
+def _unit_axis(rel, t, axis_id):
+    """Return axis ``axis_id`` as a unit vector in A's frame, turned to point from A to B."""
     if axis_id < _FIRST_B_FACE:
         s = 1.0 if t[axis_id] >= 0.0 else -1.0
-        axis = (s if axis_id == 0 else 0.0, s if axis_id == 1 else 0.0,
+        return (s if axis_id == 0 else 0.0, s if axis_id == 1 else 0.0,
                 s if axis_id == 2 else 0.0)
+    if axis_id < _FIRST_EDGE:
+        b_j = column(rel, axis_id - _FIRST_B_FACE)
+        s = 1.0 if dot(t, b_j) >= 0.0 else -1.0
+        return s * b_j[0], s * b_j[1], s * b_j[2]
+    return _edge_axis(rel, t, (axis_id - _FIRST_EDGE) // 3, (axis_id - _FIRST_EDGE) % 3)
+
+
+@kernel
+def _contact(rel, t, ea, eb, tie, axis_id):
+    """Return the unit axis (A → B) and the contact point, in A's frame."""
+    axis = _unit_axis(rel, t, axis_id)
+    if axis_id < _FIRST_B_FACE:
         first = _B_FEATURE_IN_A
     elif axis_id < _FIRST_EDGE:
-        b_j = _column(rel, axis_id - _FIRST_B_FACE)
-        s = 1.0 if _dot(t, b_j) >= 0.0 else -1.0
-        axis = (s * b_j[0], s * b_j[1], s * b_j[2])
         first = _A_FEATURE_IN_B
     else:
-        axis = _edge_axis(rel, t, (axis_id - _FIRST_EDGE) // 3, (axis_id - _FIRST_EDGE) % 3)
         first = _EDGE_CLOSEST_POINTS
     # The anchor that belongs to the axis first, then the others (the closest points of the
     # edges only exist for an edge axis).
@@ -346,7 +324,7 @@ def _contact(rel, t, ea, eb, tie, axis_id):
     # normal to hit. A needle's intersection with the other box lies on its spine, two
     # plates' on the line where their mid-planes cross.
     a_axes = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-    b_axes = (_column(rel, 0), _column(rel, 1), _column(rel, 2))
+    b_axes = (column(rel, 0), column(rel, 1), column(rel, 2))
     found, p = _chord_midpoint(rel, t, ea, eb, tie, a_axes[_longest(ea)], (0.0, 0.0, 0.0))
     if found:
         return axis, p
@@ -355,13 +333,13 @@ def _contact(rel, t, ea, eb, tie, axis_id):
         return axis, p
     normal_a = a_axes[_shortest(ea)]
     normal_b = b_axes[_shortest(eb)]
-    cosine = _dot(normal_a, normal_b)
-    direction = _cross(normal_a, normal_b)
-    sine_sq = _dot(direction, direction)
+    cosine = dot(normal_a, normal_b)
+    direction = cross(normal_a, normal_b)
+    sine_sq = dot(direction, direction)
     if sine_sq > 0.0:
         # The point of both mid-planes (normal_a·p = 0, normal_b·p = normal_b·t) closest to
         # A's centre.
-        scale = _dot(normal_b, t) / sine_sq
+        scale = dot(normal_b, t) / sine_sq
         on_both = (scale * (normal_b[0] - cosine * normal_a[0]),
                    scale * (normal_b[1] - cosine * normal_a[1]),
                    scale * (normal_b[2] - cosine * normal_a[2]))
@@ -385,11 +363,6 @@ def _shortest(extents):
     if extents[0] <= extents[1] and extents[0] <= extents[2]:
         return 0
     return 1 if extents[1] <= extents[2] else 2
-
-
-@kernel
-def _cross(u, v):
-    return u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]
 
 
 @kernel
@@ -440,8 +413,8 @@ def _minus_support(rel, t, eb, axis, skip):
 @kernel
 def _step_back(p, rel, eb, axis, k, skip):
     """Move ``p`` along B's axis k to B's side that faces −axis (unless k == skip)."""
-    b_k = _column(rel, k)
-    toward = eb[k] * _sign_of(_dot(axis, b_k)) if k != skip else 0.0
+    b_k = column(rel, k)
+    toward = eb[k] * _sign_of(dot(axis, b_k)) if k != skip else 0.0
     return p[0] - toward * b_k[0], p[1] - toward * b_k[1], p[2] - toward * b_k[2]
 
 
@@ -450,9 +423,9 @@ def _a_feature_in_b(rel, t, ea, eb, axis):
     """Return the middle of A's deepest feature along +axis, clamped into B (A's frame)."""
     q = (ea[0] * _sign_of(axis[0]) - t[0], ea[1] * _sign_of(axis[1]) - t[1],
          ea[2] * _sign_of(axis[2]) - t[2])
-    u0 = min(max(_dot(_column(rel, 0), q), -eb[0]), eb[0])
-    u1 = min(max(_dot(_column(rel, 1), q), -eb[1]), eb[1])
-    u2 = min(max(_dot(_column(rel, 2), q), -eb[2]), eb[2])
+    u0 = min(max(dot(column(rel, 0), q), -eb[0]), eb[0])
+    u1 = min(max(dot(column(rel, 1), q), -eb[1]), eb[1])
+    u2 = min(max(dot(column(rel, 2), q), -eb[2]), eb[2])
     return (t[0] + rel[0] * u0 + rel[1] * u1 + rel[2] * u2,
             t[1] + rel[3] * u0 + rel[4] * u1 + rel[5] * u2,
             t[2] + rel[6] * u0 + rel[7] * u1 + rel[8] * u2)
@@ -467,13 +440,13 @@ def _edge_closest_points(rel, t, ea, eb, i, j, axis):
           ea[1] * _sign_of(axis[1]) if i != 1 else 0.0,
           ea[2] * _sign_of(axis[2]) if i != 2 else 0.0)
     pb = _minus_support(rel, t, eb, axis, j)
-    b_j = _column(rel, j)
+    b_j = column(rel, j)
     # Closest points of P(s) = pa + s e_i, |s| <= ea_i, and Q(u) = pb + u b_j, |u| <= eb_j
     # (Ericson, Real-Time Collision Detection, 5.1.9, with centred parameters).
     r = (pa[0] - pb[0], pa[1] - pb[1], pa[2] - pb[2])
     c = r[i]
-    f = _dot(b_j, r)
-    b_len_sq = _dot(b_j, b_j)
+    f = dot(b_j, r)
+    b_len_sq = dot(b_j, b_j)
     cos_ab = b_j[i]
     denom = b_len_sq - cos_ab * cos_ab
     s = 0.0
@@ -496,11 +469,11 @@ def _chord_midpoint(rel, t, ea, eb, tie, axis, p):
     """
     # Each slab as |x + s·y| <= e: A's three in A's frame, B's three in B's frame.
     offset = (p[0] - t[0], p[1] - t[1], p[2] - t[2])
-    b_0, b_1, b_2 = _column(rel, 0), _column(rel, 1), _column(rel, 2)
+    b_0, b_1, b_2 = column(rel, 0), column(rel, 1), column(rel, 2)
     slabs = ((p[0], axis[0], ea[0]), (p[1], axis[1], ea[1]), (p[2], axis[2], ea[2]),
-             (_dot(b_0, offset), _dot(b_0, axis), eb[0]),
-             (_dot(b_1, offset), _dot(b_1, axis), eb[1]),
-             (_dot(b_2, offset), _dot(b_2, axis), eb[2]))
+             (dot(b_0, offset), dot(b_0, axis), eb[0]),
+             (dot(b_1, offset), dot(b_1, axis), eb[1]),
+             (dot(b_2, offset), dot(b_2, axis), eb[2]))
     # (low, high, |y| of the slab that set low, |y| of the one that set high, still open)
     chord = (-np.inf, np.inf, 0.0, 0.0, True)
     for slab in slabs:

@@ -166,8 +166,109 @@ def room(n=ROOM_DYNAMIC_COUNT, seed=0):
         bounds=np.array([low, high]))
 
 
+class ArmScene(NamedTuple):
+    """A serial arm of boxes over static boxes: dynamic poses from forward kinematics."""
+
+    name: str
+    static_poses: np.ndarray           # (S, 7)
+    static_half_extents: np.ndarray    # (S, 3)
+    dynamic_half_extents: np.ndarray   # (L, 3), one box per link
+
+    @property
+    def dynamic_count(self):
+        return len(self.dynamic_half_extents)
+
+    def dynamic_poses(self, time_s):
+        """Poses (L, 7) of the links ``time_s`` seconds into the joint trajectory."""
+        angles = arm_joint_angles(time_s)
+        rotation, origin = np.eye(3), np.zeros(3)
+        poses = np.empty((len(ARM_LINKS), 7))
+        for link, (joint_origin, axis, box_center, _) in enumerate(ARM_LINKS):
+            origin = origin + rotation @ np.array(joint_origin)
+            rotation = rotation @ _axis_rotation(axis, angles[link])
+            poses[link, :3] = origin + rotation @ np.array(box_center)
+            poses[link, 3:] = _quaternion(rotation)
+        return poses
+
+
+# The arm of config/arm.yaml: a base and six links on revolute joints, each link's box reaching
+# a few cm past its joint into its neighbour's, as real links overlap at their joints. Per link:
+# joint origin in the parent link's frame, joint axis (0 x, 1 y, 2 z; None: fixed), the box
+# centre in the link's frame and its half extents (m).
+ARM_LINKS = (
+    ((0.0, 0.0, 0.0), None, (0.0, 0.0, 0.1), (0.1, 0.1, 0.1)),         # base, on the floor
+    ((0.0, 0.0, 0.2), 2, (0.0, 0.0, 0.1), (0.07, 0.07, 0.12)),        # shoulder yaw
+    ((0.0, 0.0, 0.2), 1, (0.2, 0.0, 0.0), (0.25, 0.06, 0.06)),        # shoulder pitch
+    ((0.4, 0.0, 0.0), 1, (0.18, 0.0, 0.0), (0.22, 0.05, 0.05)),       # elbow
+    ((0.4, 0.0, 0.0), 0, (0.05, 0.0, 0.0), (0.07, 0.045, 0.045)),     # wrist roll
+    ((0.1, 0.0, 0.0), 1, (0.05, 0.0, 0.0), (0.06, 0.04, 0.04)),       # wrist pitch
+    ((0.1, 0.0, 0.0), 0, (0.06, 0.0, 0.0), (0.07, 0.05, 0.02)),       # flange and gripper
+)
+ARM_LINK_COUNT = len(ARM_LINKS)
+ARM_STATICS = {  # name: (pose, half extents), as in config/arm.yaml
+    'floor': ((0.0, 0.0, -0.05, 0.0, 0.0, 0.0, 1.0), (1.5, 1.5, 0.05)),
+    'table': ((0.75, -0.1, 0.3, 0.0, 0.0, 0.0, 1.0), (0.3, 0.45, 0.02)),
+    'shelf': ((0.1, 1.0, 0.6, 0.0, 0.0, 0.0, 1.0), (0.35, 0.12, 0.6)),
+}
+ARM_PERIOD_S = 8.0  # one sweep over the table, past the shelf and back
+
+
+def arm_joint_angles(time_s):
+    """Joint angles (rad) of the links at ``time_s``: a smooth periodic sweep (base: 0)."""
+    phase = 2.0 * np.pi * time_s / ARM_PERIOD_S
+    return np.array([
+        0.0,
+        0.25 + 0.95 * np.sin(phase),              # yaw: over the table, then to the shelf
+        -0.6 + 0.25 * np.sin(2.0 * phase),        # shoulder, raised; dips twice a sweep
+        0.7 + 0.3 * np.cos(phase),                # elbow
+        0.8 * np.sin(3.0 * phase),                # wrist roll
+        0.6 + 0.4 * np.sin(2.0 * phase + 0.5),    # wrist pitch
+        0.0])
+
+
+def arm(n=ARM_LINK_COUNT, seed=0):
+    """Return the arm scene of config/arm.yaml (``n`` must be its link count; no randomness)."""
+    if n != ARM_LINK_COUNT:
+        raise ValueError('the arm has %d links, not %d' % (ARM_LINK_COUNT, n))
+    statics = list(ARM_STATICS.values())
+    return ArmScene('arm', np.array([pose for pose, _ in statics]),
+                    np.array([extent for _, extent in statics]),
+                    np.array([link[3] for link in ARM_LINKS], dtype=np.float64))
+
+
+def _axis_rotation(axis, angle):
+    """Return the rotation by ``angle`` about coordinate axis ``axis`` (None: identity)."""
+    rotation = np.eye(3)
+    if axis is not None:
+        i, j = (axis + 1) % 3, (axis + 2) % 3
+        c, s = np.cos(angle), np.sin(angle)
+        rotation[i, i], rotation[i, j], rotation[j, i], rotation[j, j] = c, -s, s, c
+    return rotation
+
+
+def _quaternion(rotation):
+    """Return the unit quaternion (x, y, z, w) of a rotation matrix (Shepperd's method)."""
+    trace = np.trace(rotation)
+    k = int(np.argmax([trace, *np.diag(rotation)]))
+    if k == 0:
+        w = 0.5 * np.sqrt(1.0 + trace)
+        x, y, z = (rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0],
+                   rotation[1, 0] - rotation[0, 1]) / (4.0 * w)
+        return np.array([x, y, z, w])
+    i = k - 1
+    j, m = (i + 1) % 3, (i + 2) % 3
+    q = np.empty(4)
+    q[i] = 0.5 * np.sqrt(1.0 + rotation[i, i] - rotation[j, j] - rotation[m, m])
+    q[j] = (rotation[j, i] + rotation[i, j]) / (4.0 * q[i])
+    q[m] = (rotation[m, i] + rotation[i, m]) / (4.0 * q[i])
+    q[3] = (rotation[m, j] - rotation[j, m]) / (4.0 * q[i])
+    return q
+
+
 SCENES = {'uniform': uniform, 'clustered': clustered, 'flying_out': flying_out,
-          'paper000': paper000, 'room': room}
+          'paper000': paper000, 'room': room, 'arm': arm}
+# Scenes whose body count is part of the scene: the pose publisher's default.
+SCENE_BODY_COUNTS = {'room': ROOM_DYNAMIC_COUNT, 'arm': ARM_LINK_COUNT}
 
 
 def make_scene(name, n, seed=0):

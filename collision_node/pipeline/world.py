@@ -28,7 +28,9 @@ from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase import make_broad_phase, NAMES, Settings
 from collision_node.pipeline.contacts import (  # noqa: F401 (DYNAMIC re-exported)
     assemble_contacts, CONTACT_DTYPE, DYNAMIC, merge_contacts, orient_pairs, STATIC)
-from collision_node.pipeline.obb import Boxes, MAX_COORDINATE, set_boxes
+from collision_node.pipeline.filters import (ALL_CATEGORIES, collision_bits, DEFAULT_CATEGORY,
+                                             filters_nothing, PairFilter)
+from collision_node.pipeline.obb import Boxes, MAX_COORDINATE, pad_bounds, set_boxes
 from collision_node.pipeline.sat import collide_pairs, empty_output, INVALID
 from collision_node.pipeline.scenes import uniform
 from collision_node.pipeline.workers import Workers
@@ -64,10 +66,19 @@ class World:
     """Static and dynamic oriented boxes and the broad phase that pairs them."""
 
     def __init__(self, broad_phase='auto', sphere_prefilter=True, octree_max_depth=0,
-                 octree_leaf_cooldown_ticks=15, threads=1):
+                 octree_leaf_cooldown_ticks=15, threads=1, margin=0.0):
         self._boxes = Boxes(1024)
         self._n_static = 0
         self._static_ids = np.zeros(0, np.int64)
+        self._static = _StaticInput(np.zeros((0, 7)), np.zeros((0, 3)), np.zeros(0, np.int64),
+                                    np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64))
+        # Per static row (spatial order), for the pair filter:
+        self._static_categories = np.zeros(0, np.int64)
+        self._static_masks = np.zeros(0, np.int64)
+        self._static_ignorable = np.zeros(0, np.bool_)
+        self._filter = PairFilter()
+        self._filtering = False  # whether any setting can filter a pair
+        self._margin = _checked_margin('margin', margin)
         self._dynamic_ids = np.zeros(0, np.int64)  # body in each dynamic row (spatial order)
         self._dynamic_rows = np.zeros(0, np.int64)  # its inverse: row of each body - n_static
         self._sampled = np.zeros(0, np.int64)  # bodies whose travel tells when to sort again
@@ -90,6 +101,18 @@ class World:
     def sphere_prefilter(self):
         return self._sphere_prefilter
 
+    @property
+    def margin(self):
+        """Pairs whose boxes are at most this far apart (m, exact distance) are reported."""
+        return self._margin
+
+    @margin.setter
+    def margin(self, value):
+        margin = _checked_margin('margin', value)
+        if margin != self._margin:
+            self._margin = margin
+            self.set_static(*self._static)  # the static bounds are padded by half the margin
+
     @sphere_prefilter.setter
     def sphere_prefilter(self, value):
         self._sphere_prefilter = bool(value)
@@ -110,29 +133,66 @@ class World:
             self._phase_name, self._settings, self._phase = name, settings, phase
             self._last = None
 
-    def set_static(self, poses, half_extents, ids=None):
+    def set_static(self, poses, half_extents, ids=None, margins=0.0,
+                   categories=DEFAULT_CATEGORY, masks=ALL_CATEGORIES):
         """Replace the static boxes; ``ids`` (default 0..S-1) are reported as their id_b.
 
-        Raises ValueError naming the first invalid box.
+        ``margins`` (m, one for all or one per box) are added to the World's margin for pairs
+        with that box; ``categories`` and ``masks`` (one for all or one per box) are their
+        collision filter bits. Raises ValueError naming the first invalid box or value.
         """
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
+        count = len(poses)
         if ids is None:
-            ids = np.arange(len(poses))
+            ids = np.arange(count)
         ids = np.asarray(ids, dtype=np.int64)
-        if ids.shape != (len(poses),):
+        if ids.shape != (count,):
             raise ValueError('ids must have one entry per static pose')
+        margins = _per_box('static margins', np.asarray(margins, np.float64), count)
+        for margin in margins:
+            _checked_margin('static margin', margin)
+        categories = _per_box('static categories',
+                              collision_bits('static categories', categories), count)
+        masks = _per_box('static masks', collision_bits('static masks', masks), count)
         # Written into new storage so that an invalid box leaves the world as it was.
-        boxes = Boxes(len(poses) + self._boxes.capacity)
+        boxes = Boxes(count + self._boxes.capacity)
         order = _z_order(poses[:, :3])  # static rows in spatial order too
         try:
             set_boxes(boxes, 0, poses, half_extents, _inverse(order))
         except ValueError as error:
             raise ValueError('static %s' % error) from None
+        boxes.margins[:count] = margins[order]
+        if self._margin > 0.0 or np.any(margins > 0.0):
+            pad_bounds(boxes.aabbs, boxes.radii, boxes.margins, 0, count, self._margin / 2)
+        self._static = _StaticInput(poses.copy(), np.array(half_extents, np.float64), ids,
+                                    margins, categories, masks)
         self._boxes = boxes
-        self._n_static = len(poses)
+        self._n_static = count
         self._static_ids = ids[order]
+        self._static_categories = categories[order]
+        self._static_masks = masks[order]
+        self._update_filtering()
         self._phase.set_static(self._boxes, self._n_static)
         self._last = None
+
+    def set_filters(self, categories=DEFAULT_CATEGORY, masks=ALL_CATEGORIES, ignored_pairs=()):
+        """Set the dynamic bodies' collision bits and the pairs never to check.
+
+        ``categories`` and ``masks``: one integer for every dynamic body, or one per body in
+        input order; ``ignored_pairs``: rows ``(id_a, type_a, id_b, type_b)`` as in the cloud.
+        A pair is checked only if ``category_a & mask_b`` and ``category_b & mask_a`` are both
+        non-zero and it is not ignored (filters.py). Raises ValueError on invalid values.
+        """
+        self._filter = PairFilter(categories, masks, ignored_pairs)
+        self._update_filtering()
+        self._last = None
+
+    def _update_filtering(self):
+        flags = self._filter.static_ignorable
+        self._static_ignorable = np.zeros(self._n_static, np.bool_) if not len(flags) else \
+            flags[np.minimum(self._static_ids, len(flags) - 1)] & (self._static_ids < len(flags))
+        self._filtering = not (self._filter.is_default and filters_nothing(
+            self._static_categories, self._static_masks))
 
     @property
     def static_count(self):
@@ -149,6 +209,7 @@ class World:
         start = time.perf_counter()
         poses = np.require(poses, np.float64, ['C', 'A', 'W']).reshape(-1, 7)
         half_extents = np.asarray(half_extents, dtype=np.float64)
+        self._filter.check_count(len(poses))
         moved = self._moved_bodies(poses, half_extents)
         if moved is not None and not moved.any():
             return self._last[2]._replace(stats=dict(self._last[2].stats, reused=True))
@@ -163,11 +224,15 @@ class World:
         if len(self._dynamic_ids) != n_dynamic or self._rows_are_stale(poses, half_extents):
             self._sort_dynamic_rows(poses)
         set_boxes(self._boxes, n_static, poses, half_extents, self._dynamic_rows)
+        if self._margin > 0.0:
+            pad_bounds(self._boxes.aabbs, self._boxes.radii, self._boxes.margins, n_static,
+                       n_static + n_dynamic, self._margin / 2)
         prepared = time.perf_counter()
 
         stats = {'broad_phase': self._phase.name, 'dynamic_bodies': n_dynamic,
                  'static_bodies': n_static, 'compared': 0, 'candidate_pairs': 0,
-                 'sat_tests': 0, 'colliding_pairs': 0, 'reused': False,
+                 'filtered_pairs': 0, 'sat_tests': 0, 'colliding_pairs': 0, 'near_pairs': 0,
+                 'min_distance': math.nan, 'min_distance_pair': None, 'reused': False,
                  'still_bodies': 0 if moved is None else int(n_dynamic - moved.sum()),
                  'broad_phase_stats': {}}
         if n_dynamic == 0:  # nothing moves: nothing to pair
@@ -181,6 +246,11 @@ class World:
             broad_done = time.perf_counter()
             candidates = len(pairs)
             orient_pairs(pairs, n_static, self._dynamic_ids)
+            if self._filtering:
+                pairs = pairs[:self._filter.keep_checked(
+                    pairs, n_static, self._static_ids, self._static_categories,
+                    self._static_masks, self._static_ignorable, self._dynamic_ids)]
+            checked = len(pairs)
             if moved is not None:  # the other pairs' contacts are those of the last step
                 pairs = pairs[:_front_pairs_with_a_moved_body(pairs, n_static, self._dynamic_ids,
                                                               moved)]
@@ -193,7 +263,8 @@ class World:
                 contacts = merge_contacts(self._contacts_of_still_bodies(moved), contacts)
             narrow_done = time.perf_counter()
             stats.update(compared=int(compared), candidate_pairs=candidates,
-                         sat_tests=int(sat_tests), colliding_pairs=len(contacts))
+                         filtered_pairs=candidates - checked, sat_tests=int(sat_tests),
+                         **_distance_stats(contacts))
         stats.update(prepare_ms=1e3 * (prepared - start), broad_ms=1e3 * (broad_done - prepared),
                      narrow_ms=1e3 * (narrow_done - broad_done),
                      total_ms=1e3 * (time.perf_counter() - start))
@@ -267,11 +338,13 @@ class World:
         if len(self._sat_output[0]) < len(pairs):
             self._sat_output = empty_output(int(SAT_OUTPUT_GROWTH * len(pairs)))
         boxes = self._boxes
+        margins = boxes.margins if self._margin > 0.0 or np.any(self._static.margins) else None
 
         def chunk(_, start, stop):
             return collide_pairs(boxes.centers, boxes.rotations, boxes.half_extents,
                                  boxes.radii, pairs[start:stop], self._sphere_prefilter,
-                                 [array[start:stop] for array in self._sat_output])[-1]
+                                 [array[start:stop] for array in self._sat_output],
+                                 self._margin, margins)[-1]
 
         sat_tests = sum(self._workers.map_ranges(chunk, len(pairs), MIN_PAIRS_PER_CHUNK))
         return tuple(array[:len(pairs)] for array in self._sat_output) + (sat_tests,)
@@ -279,6 +352,47 @@ class World:
     def close(self):
         """Stop the World's helper threads (none with ``threads=1``)."""
         self._workers.close()
+
+
+class _StaticInput(NamedTuple):
+    """The arguments of the last set_static, kept to pad the boxes again for a new margin."""
+
+    poses: np.ndarray
+    half_extents: np.ndarray
+    ids: np.ndarray
+    margins: np.ndarray
+    categories: np.ndarray
+    masks: np.ndarray
+
+
+def _checked_margin(name, value):
+    margin = float(value)
+    if not 0.0 <= margin <= MAX_COORDINATE:  # also refuses NaN
+        raise ValueError('%s must be in [0, %g] m, got %r' % (name, MAX_COORDINATE, value))
+    return margin
+
+
+def _per_box(name, values, count):
+    """Return ``values`` (one for all, or one per box) as one per box."""
+    values = np.atleast_1d(values)
+    if values.ndim != 1 or len(values) not in (1, count):
+        raise ValueError('%s: give one value or one per box (%d), got %d'
+                         % (name, count, values.size))
+    return np.broadcast_to(values, (count,)).copy()
+
+
+def _distance_stats(contacts):
+    """Return colliding_pairs, near_pairs, min_distance and min_distance_pair of contacts."""
+    distance = contacts['distance']
+    near = int(np.count_nonzero(distance > 0.0))
+    if not len(contacts):
+        return {'colliding_pairs': 0, 'near_pairs': 0, 'min_distance': math.nan,
+                'min_distance_pair': None}
+    closest = contacts[int(np.argmin(distance))]
+    return {'colliding_pairs': len(contacts) - near, 'near_pairs': near,
+            'min_distance': float(closest['distance']),
+            'min_distance_pair': tuple(int(closest[key])
+                                       for key in ('id_a', 'type_a', 'id_b', 'type_b'))}
 
 
 @kernel
@@ -386,6 +500,13 @@ def warm_up():
                 world.step(_half_moved(scene, 1.0), scene.dynamic_half_extents[0])
                 world.step(scene.dynamic_poses(1.5)[:1], scene.dynamic_half_extents[0])
                 world.step(np.zeros((0, 7)), scene.dynamic_half_extents[0])
+    # Margins (padded bounds, exact distances) and filters (masks per body, ignored pairs).
+    world = World(broad_phase='brute_force', margin=0.1)
+    world.set_static(scene.static_poses, scene.static_half_extents, margins=0.05, masks=3)
+    world.set_filters(categories=np.arange(len(scene.dynamic_poses(0.0))) % 2 + 1,
+                      ignored_pairs=[(0, DYNAMIC, 1, DYNAMIC), (0, DYNAMIC, 0, STATIC)])
+    world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents)
+    world.step(_half_moved(scene, 0.5), scene.dynamic_half_extents)
 
 
 def _half_moved(scene, time_s):

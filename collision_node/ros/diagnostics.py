@@ -15,7 +15,7 @@ TOTAL = STAGES.index('total')
 # this many ticks (the max is exact over the whole period). 4096 covers 1 kHz for 4 s.
 SAMPLES_PER_PERIOD = 4096
 WORLD_KEYS = ('broad_phase', 'dynamic_bodies', 'static_bodies', 'still_bodies', 'compared',
-              'candidate_pairs', 'sat_tests', 'colliding_pairs')
+              'candidate_pairs', 'filtered_pairs', 'sat_tests', 'colliding_pairs', 'near_pairs')
 
 
 class Monitor:
@@ -38,6 +38,8 @@ class Monitor:
         self._world = dict.fromkeys(WORLD_KEYS, 0)
         self._world['broad_phase'] = ''
         self._world['reused_result'] = False
+        self._world['min_distance'] = ''       # m, signed, in the last tick ('' without pairs)
+        self._world['min_distance_pair'] = ''  # as collision_monitor writes it: d3-s1
         self._phase_stats = {}  # the broad phase's own counters (octree leaves, sorts, ...)
 
     def received(self):
@@ -66,6 +68,10 @@ class Monitor:
         for key in WORLD_KEYS:
             self._world[key] = world_stats[key]
         self._world['reused_result'] = world_stats.get('reused', False)
+        pair = world_stats.get('min_distance_pair')
+        self._world['min_distance'] = '' if pair is None else \
+            '%.6g' % world_stats['min_distance']
+        self._world['min_distance_pair'] = '' if pair is None else pair_name(*pair)
         self._phase_stats = world_stats.get('broad_phase_stats', self._phase_stats)
 
     def report(self, now_s, input_timeout_s, tick_period_s=0.0):
@@ -115,6 +121,11 @@ class Monitor:
         self._ticks = self._received = self._dropped = self._rejected = 0
         self._period_max[:] = 0.0
         return level, message, values
+
+
+def pair_name(id_a, type_a, id_b, type_b):
+    """Name a pair as collision_monitor prints it: d3-s1 is dynamic body 3, static id 1."""
+    return '%s%d-%s%d' % ('ds'[type_a], id_a, 'ds'[type_b], id_b)
 
 
 def _ms(value):

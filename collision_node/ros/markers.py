@@ -28,7 +28,9 @@ from collision_node.pipeline.contacts import DYNAMIC
 STATIC_COLOR = (0.6, 0.6, 0.6, 0.5)      # r g b a
 FREE_COLOR = (0.2, 0.8, 0.2, 0.6)
 COLLIDING_COLOR = (0.9, 0.1, 0.1, 0.8)
+NEAR_COLOR = (1.0, 0.5, 0.0, 0.8)        # within the margin, not touching
 NORMAL_COLOR = (1.0, 0.9, 0.0, 1.0)
+GAP_COLOR = (1.0, 0.5, 0.0, 1.0)         # a near pair's arrow: closest point to closest point
 NORMAL_ARROW_MIN_LENGTH = 0.05  # m; an arrow is max(depth, this) long, so shallow ones show
 NORMAL_ARROW_WIDTH = 0.01       # m, shaft diameter; the head is twice as wide
 # An arrow's normal this close to -x has no unique half-way rotation from +x.
@@ -102,7 +104,12 @@ class MarkerKind:
 
 
 class MarkerWriter:
-    """Writes the node's MarkerArray: DELETEALL, a cube per body, an arrow per contact."""
+    """Writes the node's MarkerArray: DELETEALL, a cube per body, an arrow per contact.
+
+    A colliding pair's arrow is its normal at the contact point, as long as the depth (at least
+    NORMAL_ARROW_MIN_LENGTH); a near pair's goes from A's closest point to B's, exactly the gap.
+    Dynamic cubes are red when they collide, orange when they are only near something.
+    """
 
     def __init__(self, frame_id):
         self._head = np.frombuffer(
@@ -119,17 +126,25 @@ class MarkerWriter:
         index of their pose; arrows the index of their contact. ``half_extents`` is (3,) or
         (D, 3); ``contacts`` a CONTACT_DTYPE or CLOUD_DTYPE array.
         """
-        colliding = np.zeros(len(poses), bool)
-        colliding[contacts['id_a']] = True
-        colliding[contacts['id_b'][contacts['type_b'] == DYNAMIC]] = True
+        distance = contacts['distance'].astype(np.float64)
+        near = distance > 0.0
+        colliding, near_only = (np.zeros(len(poses), bool) for _ in range(2))
+        for marked, rows in ((colliding, ~near), (near_only, near)):
+            marked[contacts['id_a'][rows]] = True
+            marked[contacts['id_b'][rows & (contacts['type_b'] == DYNAMIC)]] = True
         normals = np.stack([contacts['normal_x'], contacts['normal_y'], contacts['normal_z']],
                            axis=1).astype(np.float64)
         arrows = np.empty((len(contacts), 7))
         arrows[:, 0], arrows[:, 1], arrows[:, 2] = contacts['x'], contacts['y'], contacts['z']
+        # A near pair's point is the middle of the gap: its arrow starts at A's closest point.
+        arrows[near, :3] -= normals[near] * (0.5 * distance[near, None])
         arrows[:, 3:] = quaternions_turning_x_to(normals)
         arrow_scales = np.empty((len(contacts), 3))
-        arrow_scales[:, 0] = np.maximum(contacts['depth'], NORMAL_ARROW_MIN_LENGTH)
+        arrow_scales[:, 0] = np.where(near, distance,
+                                      np.maximum(contacts['depth'], NORMAL_ARROW_MIN_LENGTH))
         arrow_scales[:, 1:] = (NORMAL_ARROW_WIDTH, 2.0 * NORMAL_ARROW_WIDTH)
+        body_colors = np.where(colliding[:, None], COLLIDING_COLOR,
+                               np.where(near_only[:, None], NEAR_COLOR, FREE_COLOR))
 
         head = self._head.copy()
         # int32 sec, uint32 nanosec: a stamp before 1970 (negative sec) is a valid stamp.
@@ -139,9 +154,9 @@ class MarkerWriter:
         for kind, ids, group_poses, scales, colors in (
                 (self.static, static_ids, static_poses, 2.0 * static_half_extents,
                  STATIC_COLOR),
-                (self.dynamic, np.arange(len(poses)), poses, 2.0 * half_extents,
-                 np.where(colliding[:, None], COLLIDING_COLOR, FREE_COLOR)),
-                (self.normals, np.arange(len(contacts)), arrows, arrow_scales, NORMAL_COLOR)):
+                (self.dynamic, np.arange(len(poses)), poses, 2.0 * half_extents, body_colors),
+                (self.normals, np.arange(len(contacts)), arrows, arrow_scales,
+                 np.where(near[:, None], GAP_COLOR, NORMAL_COLOR))):
             block = kind.block(len(ids))
             block['sec'], block['nanosec'], block['id'] = sec, nanosec, ids
             block['pose'], block['scale'], block['color'] = group_poses, scales, colors

@@ -1,8 +1,10 @@
 """The `collisions` cloud (DESIGN §3): contacts to sensor_msgs/PointCloud2 and back.
 
-One point per colliding pair, height 1, little-endian, dense, point_step 44: FLOAT32
-``x y z normal_x normal_y normal_z depth`` then UINT32 ``id_a type_a id_b type_b``, packed in
-that order. The points are written and read as one numpy block, never point by point.
+One point per reported pair, height 1, little-endian, dense, point_step 48: FLOAT32
+``x y z normal_x normal_y normal_z depth``, UINT32 ``id_a type_a id_b type_b``, then FLOAT32
+``distance``, packed in that order (fields added later come last, so a reader that finds
+fields by name or offset keeps working). The points are written and read as one numpy block,
+never point by point.
 
     contacts = cloud_to_contacts(msg)   # structured array, fields as in the cloud
 """
@@ -24,11 +26,15 @@ CLOUD_FIELDS = tuple(
     for name in CLOUD_DTYPE.names)  # (name, offset, datatype, count) of each PointField
 
 
-# CONTACT_DTYPE is 7 float64 fields then 4 uint32 ones, packed: a row is 9 float64 words or 18
-# uint32 words, and the ids are uint32 words 14 to 17. CloudWriter reads contacts that way.
-FLOAT_FIELDS = 7
-assert [CONTACT_DTYPE[name].kind for name in CONTACT_DTYPE.names] == ['f'] * 7 + ['u'] * 4
-assert CONTACT_DTYPE.itemsize == 9 * 8 and not CONTACT_DTYPE.isalignedstruct
+# CloudWriter reads a contact row as 32-bit words: a float64 field starts at word
+# offset // 4 (as half of a float64 word offset // 8), a uint32 field at offset // 4. Each cloud
+# field is 4 bytes at word offset // 4 of its point.
+_FIELD_IS_FLOAT = np.array([CONTACT_DTYPE[name].kind == 'f' for name in CONTACT_DTYPE.names])
+_CONTACT_WORDS = np.array([CONTACT_DTYPE.fields[name][1] // 4 for name in CONTACT_DTYPE.names])
+_POINT_WORDS = np.array([CLOUD_DTYPE.fields[name][1] // 4 for name in CLOUD_DTYPE.names])
+assert CONTACT_DTYPE.itemsize % 8 == 0 and all(
+    CONTACT_DTYPE.fields[name][1] % CONTACT_DTYPE[name].itemsize == 0
+    for name in CONTACT_DTYPE.names)  # every float64 field is 8-aligned in the row
 
 
 def contacts_to_points(contacts):
@@ -88,10 +94,13 @@ class CloudWriter:
         buffer[:len(head)] = np.frombuffer(head, np.uint8)
         points = buffer[len(head):size - len(tail)].view(CLOUD_DTYPE)
         if contacts.dtype == CONTACT_DTYPE and contacts.flags.c_contiguous:
-            _narrow_contacts(contacts.view(np.float64).reshape(count, 9),
-                             contacts.view(np.uint32).reshape(count, 18),
-                             points.view(np.float32).reshape(count, 11),
-                             points.view(np.uint32).reshape(count, 11))
+            row_words = CONTACT_DTYPE.itemsize // 4
+            point_words = CLOUD_DTYPE.itemsize // 4
+            _narrow_contacts(contacts.view(np.float64).reshape(count, row_words // 2),
+                             contacts.view(np.uint32).reshape(count, row_words),
+                             points.view(np.float32).reshape(count, point_words),
+                             points.view(np.uint32).reshape(count, point_words),
+                             _FIELD_IS_FLOAT, _CONTACT_WORDS, _POINT_WORDS)
         else:
             points[:] = contacts_to_points(contacts)
         buffer[size - len(tail):] = np.frombuffer(tail, np.uint8)
@@ -99,13 +108,15 @@ class CloudWriter:
 
 
 @kernel
-def _narrow_contacts(floats, words, point_floats, point_words):
+def _narrow_contacts(floats, words, point_floats, point_words, is_float, contact_word,
+                     point_word):
     """Contacts (as float64 and uint32 words) to cloud points (as float32 and uint32 words)."""
     for i in range(floats.shape[0]):
-        for k in range(FLOAT_FIELDS):
-            point_floats[i, k] = np.float32(floats[i, k])
-        for k in range(4):
-            point_words[i, FLOAT_FIELDS + k] = words[i, 2 * FLOAT_FIELDS + k]
+        for f in range(len(is_float)):
+            if is_float[f]:
+                point_floats[i, point_word[f]] = np.float32(floats[i, contact_word[f] // 2])
+            else:
+                point_words[i, point_word[f]] = words[i, contact_word[f]]
 
 
 def cloud_to_contacts(msg):

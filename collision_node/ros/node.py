@@ -91,9 +91,10 @@ class CollisionNode(Node):
         config = self._config
         self._world = World(config.broad_phase, config.sphere_prefilter,
                             config.octree_max_depth, config.octree_leaf_cooldown_ticks,
-                            config.threads)
-        self._static_scene = config.static_scene()  # poses, half extents, ids
+                            config.threads, config.margin)
+        self._static_scene = config.static_scene()  # poses, half extents, ids, margins, bits
         self._world.set_static(*self._static_scene)
+        self._world.set_filters(*config.filters())
         # Parameter changes may come from another thread (Node.set_parameters); ticks run on
         # the executor's. The lock keeps a World change from landing in the middle of a step.
         self._world_lock = threading.Lock()
@@ -194,7 +195,7 @@ class CollisionNode(Node):
                 and self._markers_publisher.get_subscription_count() > 0:
             markers_start = time.perf_counter()
             markers = self._marker_writer.serialize(
-                message.sec, message.nanosec, *self._static_scene, message.poses,
+                message.sec, message.nanosec, *self._static_scene[:3], message.poses,
                 config.dynamic_half_extents, result.contacts)
             output_ms += 1e3 * (time.perf_counter() - markers_start)
             self._markers_publisher.publish(markers)
@@ -229,6 +230,11 @@ class CollisionNode(Node):
         if extents.ndim == 2 and len(extents) != count:
             raise InputError('dynamic.half_extents sizes %d bodies, the input has %d poses'
                              % (len(extents), count))
+        for name in ('dynamic.collision_category', 'dynamic.collision_mask'):
+            values = getattr(config, name.replace('.', '_'))
+            if len(values) not in (1, count):
+                raise InputError('%s has %d values, the input has %d poses'
+                                 % (name, len(values), count))
 
     def _reject(self, reason):
         self._monitor.rejected(reason)
@@ -253,9 +259,13 @@ class CollisionNode(Node):
                 return SetParametersResult(successful=False, reason=str(error))
             if changed.sphere_prefilter != old.sphere_prefilter:
                 self._world.sphere_prefilter = changed.sphere_prefilter
-            if [c.enabled for c in changed.colliders] != [c.enabled for c in old.colliders]:
+            if changed.colliders is not old.colliders:  # a collider's setting was set
                 self._static_scene = changed.static_scene()
                 self._world.set_static(*self._static_scene)
+            filters = ('dynamic_collision_category', 'dynamic_collision_mask', 'ignored_pairs')
+            if any(getattr(changed, name) != getattr(old, name) for name in filters):
+                self._world.set_filters(*changed.filters())
+            self._world.margin = changed.margin
             self._config = changed
         return SetParametersResult(successful=True)
 

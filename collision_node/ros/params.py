@@ -18,12 +18,13 @@ from typing import NamedTuple
 import numpy as np
 
 from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.filters import ALL_CATEGORIES, DEFAULT_CATEGORY, MAX_ID
 from collision_node.pipeline.obb import MAX_COORDINATE, QUATERNION_NORM_TOLERANCE
-from collision_node.pipeline.world import World
+from collision_node.pipeline.world import DYNAMIC, STATIC, World
 
 # Type names as in the DESIGN table; declare() maps them to rclpy's Parameter.Type.
 STRING, BOOL, INTEGER, DOUBLE = 'string', 'bool', 'integer', 'double'
-DOUBLE_ARRAY, STRING_ARRAY = 'double[]', 'string[]'
+DOUBLE_ARRAY, STRING_ARRAY, INTEGER_ARRAY = 'double[]', 'string[]', 'integer[]'
 
 
 class Spec(NamedTuple):
@@ -45,8 +46,18 @@ PARAMETERS = {
                                        'ticks an emptied leaf lives before it is dropped', True),
     'dynamic.half_extents': Spec(DOUBLE_ARRAY, [0.5, 0.5, 0.5],
                                  'm; 3 values for every dynamic body, or 3 per body'),
+    'dynamic.collision_category': Spec(
+        INTEGER_ARRAY, [DEFAULT_CATEGORY], 'bits; one for every dynamic body, or one per body',
+        True),
+    'dynamic.collision_mask': Spec(
+        INTEGER_ARRAY, [ALL_CATEGORIES], 'bits (-1: all); one for every dynamic body, or one '
+                                         'per body', True),
     'static_colliders': Spec(STRING_ARRAY, [], 'names of the static boxes, each with a block '
                                                '<name>.pose, <name>.half_extents, <name>.enabled'),
+    'margin': Spec(DOUBLE, 0.0, 'm; pairs whose exact distance is at most this are reported',
+                   True),
+    'ignored_pairs': Spec(STRING_ARRAY, [], '"A B" entries, A and B each d<i> (dynamic body i) '
+                                            'or a static collider name: never reported', True),
     'tick_rate_hz': Spec(DOUBLE, 0.0, '0: check every input message; > 0: a timer checks the '
                                       'newest input at this rate'),
     'input_timeout_s': Spec(DOUBLE, 1.0, 'no valid input for this long: ERROR diagnostic; '
@@ -60,10 +71,14 @@ COLLIDER_PARAMETERS = {  # <name>.<key>; pose and half_extents have no default: 
     'pose': Spec(DOUBLE_ARRAY, None, 'x y z qx qy qz qw, in frame_id'),
     'half_extents': Spec(DOUBLE_ARRAY, None, 'm, 3 values'),
     'enabled': Spec(BOOL, True, 'a disabled collider is left out of the checks', True),
+    'margin': Spec(DOUBLE, 0.0, 'm; added to margin for pairs with this collider', True),
+    'collision_category': Spec(INTEGER, DEFAULT_CATEGORY, 'bits', True),
+    'collision_mask': Spec(INTEGER, ALL_CATEGORIES, 'bits (-1: all)', True),
 }
 # A collider name becomes the first part of parameter names, so it must be a plain identifier
 # and must not collide with the node's own parameter groups.
 COLLIDER_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
+DYNAMIC_BODY = re.compile(r'd(-?[0-9]+)\Z')  # d<i> in ignored_pairs; no collider is named so
 RCLPY_PARAMETER_GROUPS = frozenset({'qos_overrides', 'use_sim_time',
                                     'start_type_description_service'})
 RESERVED_NAMES = frozenset(name.split('.')[0] for name in PARAMETERS) | RCLPY_PARAMETER_GROUPS
@@ -95,6 +110,9 @@ class Collider(NamedTuple):
     pose: np.ndarray          # (7,) x y z qx qy qz qw
     half_extents: np.ndarray  # (3,)
     enabled: bool
+    margin: float = 0.0
+    collision_category: int = DEFAULT_CATEGORY
+    collision_mask: int = ALL_CATEGORIES
 
 
 class Parameters(NamedTuple):
@@ -106,7 +124,11 @@ class Parameters(NamedTuple):
     octree_max_depth: int
     octree_leaf_cooldown_ticks: int
     dynamic_half_extents: np.ndarray  # (3,) for every body, or (N, 3) one row per body
+    dynamic_collision_category: list  # one for every body, or one per body
+    dynamic_collision_mask: list
     colliders: tuple                  # of Collider, in the order of static_colliders
+    margin: float
+    ignored_pairs: list               # the entries as given ("A B" strings)
     tick_rate_hz: float
     input_timeout_s: float
     max_bodies: int
@@ -114,11 +136,24 @@ class Parameters(NamedTuple):
     diagnostic_period_s: float
 
     def static_scene(self):
-        """Poses (S, 7), half extents (S, 3) and list indices of the enabled colliders."""
-        enabled = [i for i, collider in enumerate(self.colliders) if collider.enabled]
-        poses = np.array([self.colliders[i].pose for i in enabled]).reshape(-1, POSE_SIZE)
-        extents = np.array([self.colliders[i].half_extents for i in enabled]).reshape(-1, 3)
-        return poses, extents, np.array(enabled, dtype=np.int64)
+        """World.set_static's arguments for the enabled colliders.
+
+        Poses (S, 7), half extents (S, 3), ids (their list indices), margins, categories and
+        masks (S,).
+        """
+        enabled = [c for c in self.colliders if c.enabled]
+        poses = np.array([c.pose for c in enabled]).reshape(-1, POSE_SIZE)
+        extents = np.array([c.half_extents for c in enabled]).reshape(-1, 3)
+        ids = [i for i, c in enumerate(self.colliders) if c.enabled]
+        return (poses, extents, np.array(ids, dtype=np.int64),
+                np.array([c.margin for c in enabled], dtype=np.float64),
+                np.array([c.collision_category for c in enabled], dtype=np.int64),
+                np.array([c.collision_mask for c in enabled], dtype=np.int64))
+
+    def filters(self):
+        """World.set_filters's arguments: dynamic categories and masks, ignored pair rows."""
+        return (self.dynamic_collision_category, self.dynamic_collision_mask,
+                ignored_pair_rows(self.ignored_pairs, [c.name for c in self.colliders]))
 
 
 def parse(values):
@@ -138,13 +173,16 @@ def parse(values):
     _check_collider_names(names)
     colliders = []
     for name in names:
-        pose, extents, enabled = (  # a missing pose or size stays None: _pose() says so
-            _checked_or_none('%s.%s' % (name, key), spec.value_type,
+        pose, extents, enabled, margin, category, mask = (  # a missing pose or size stays
+            _checked_or_none('%s.%s' % (name, key), spec.value_type,   # None: _pose() says so
                              get('%s.%s' % (name, key), spec))
             for key, spec in COLLIDER_PARAMETERS.items())
         colliders.append(Collider(name, _pose('%s.pose' % name, pose),
                                   _half_extents('%s.half_extents' % name, extents, single=True),
-                                  enabled))
+                                  enabled, _margin('%s.margin' % name, margin),
+                                  _bits('%s.collision_category' % name, category),
+                                  _bits('%s.collision_mask' % name, mask)))
+    ignored_pair_rows(read['ignored_pairs'], names)  # refuses a malformed entry
     return Parameters(
         frame_id=_frame_id(read['frame_id']),
         broad_phase=read['broad_phase'],
@@ -153,7 +191,13 @@ def parse(values):
         octree_leaf_cooldown_ticks=read['octree.leaf_cooldown_ticks'],
         dynamic_half_extents=_half_extents('dynamic.half_extents',
                                            read['dynamic.half_extents'], single=False),
+        dynamic_collision_category=_bits_list('dynamic.collision_category',
+                                              read['dynamic.collision_category']),
+        dynamic_collision_mask=_bits_list('dynamic.collision_mask',
+                                          read['dynamic.collision_mask']),
         colliders=tuple(colliders),
+        margin=_margin('margin', read['margin']),
+        ignored_pairs=read['ignored_pairs'],
         tick_rate_hz=_in_range('tick_rate_hz', read['tick_rate_hz'], 0.0, MAX_TICK_RATE_HZ),
         input_timeout_s=_in_range('input_timeout_s', read['input_timeout_s'], 0.0, math.inf),
         max_bodies=_in_range('max_bodies', read['max_bodies'], 1, 2**32 - 1),
@@ -180,12 +224,15 @@ def run_time_change(parameters, name, value):
     collider, _, key = name.rpartition('.')
     names = [c.name for c in parameters.colliders]
     if collider in names and key in COLLIDER_PARAMETERS:
-        if not COLLIDER_PARAMETERS[key].run_time:
-            raise ParameterError(name, 'fixed at start; only %s.enabled can change' % collider)
+        spec = COLLIDER_PARAMETERS[key]
+        if not spec.run_time:
+            raise ParameterError(name, 'fixed at start; only %s can change' % ', '.join(
+                '%s.%s' % (collider, k) for k, s in COLLIDER_PARAMETERS.items() if s.run_time))
+        value = _checked(name, spec.value_type, value)
+        value = _COLLIDER_CHECKS.get(key, lambda _, v: v)(name, value)
         index = names.index(collider)
-        enabled = _checked(name, BOOL, value)
         colliders = list(parameters.colliders)
-        colliders[index] = colliders[index]._replace(enabled=enabled)
+        colliders[index] = colliders[index]._replace(**{key: value})
         return parameters._replace(colliders=tuple(colliders))
     spec = PARAMETERS.get(name)
     if spec is None:  # not in the table (use_sim_time, qos_overrides.*): rclpy's business
@@ -195,8 +242,41 @@ def run_time_change(parameters, name, value):
     value = _checked(name, spec.value_type, value)
     if name in WORLD_SETTINGS:
         check_world_setting(name, value)
+    value = _RUN_TIME_CHECKS.get(name, lambda _, v: v)(name, value)
+    if name == 'ignored_pairs':
+        ignored_pair_rows(value, names)
     field = name.replace('.', '_')
     return parameters._replace(**{field: value})
+
+
+def ignored_pair_rows(entries, collider_names):
+    """Return ``ignored_pairs`` entries as World rows (id_a, type_a, id_b, type_b).
+
+    Each entry is ``"A B"``, A and B each ``d<i>`` (dynamic body i) or a name in
+    ``collider_names`` (its list index is its id). Raises ParameterError naming the entry.
+    """
+    rows = []
+    for entry in entries:
+        words = entry.split()
+        if len(words) != 2:
+            raise ParameterError('ignored_pairs', 'entry %r must be two bodies "A B", each '
+                                                  'd<i> or a static collider name' % entry)
+        row = []
+        for word in words:
+            dynamic = DYNAMIC_BODY.match(word)
+            if dynamic:
+                index = int(dynamic.group(1))
+                if not 0 <= index <= MAX_ID:
+                    raise ParameterError('ignored_pairs', 'entry %r: dynamic index %d must be '
+                                                          'in [0, %d]' % (entry, index, MAX_ID))
+                row += [index, DYNAMIC]
+            elif word in collider_names:
+                row += [collider_names.index(word), STATIC]
+            else:
+                raise ParameterError('ignored_pairs', 'entry %r: %r is neither d<i> nor a name '
+                                                      'in static_colliders' % (entry, word))
+        rows.append(row)
+    return np.array(rows, dtype=np.int64).reshape(-1, 4)
 
 
 def declare(node):
@@ -212,7 +292,8 @@ def declare(node):
     types = {STRING: Parameter.Type.STRING, BOOL: Parameter.Type.BOOL,
              INTEGER: Parameter.Type.INTEGER, DOUBLE: Parameter.Type.DOUBLE,
              DOUBLE_ARRAY: Parameter.Type.DOUBLE_ARRAY,
-             STRING_ARRAY: Parameter.Type.STRING_ARRAY}
+             STRING_ARRAY: Parameter.Type.STRING_ARRAY,
+             INTEGER_ARRAY: Parameter.Type.INTEGER_ARRAY}
 
     def declare_one(name, spec):
         descriptor = ParameterDescriptor(description=spec.description, read_only=not spec.run_time)
@@ -317,7 +398,34 @@ def _checked(name, type_name, value):
             return items
         if type_name == DOUBLE_ARRAY and items is not None and all(map(is_number, items)):
             return [float(item) for item in items]
+        if type_name == INTEGER_ARRAY and items is not None and all(
+                is_number(item) and float(item).is_integer() for item in items):
+            return [int(item) for item in items]
     raise ParameterError(name, 'must be of type %s, got %s' % (type_name, reprlib.repr(value)))
+
+
+def _margin(name, value):
+    if not 0.0 <= value <= MAX_COORDINATE:  # also refuses NaN
+        raise ParameterError(name, 'must be a distance in [0, %g] m, got %r'
+                             % (MAX_COORDINATE, value))
+    return value
+
+
+def _bits(name, value):
+    if not -2**63 <= value < 2**63:
+        raise ParameterError(name, 'must be a 64-bit integer (bits; -1 sets all), got %r' % value)
+    return value
+
+
+def _bits_list(name, values):
+    if not values:
+        raise ParameterError(name, 'needs one value for every dynamic body, or one per body')
+    return [_bits(name, value) for value in values]
+
+
+_RUN_TIME_CHECKS = {'margin': _margin, 'dynamic.collision_category': _bits_list,
+                    'dynamic.collision_mask': _bits_list}
+_COLLIDER_CHECKS = {'margin': _margin, 'collision_category': _bits, 'collision_mask': _bits}
 
 
 def _checked_or_none(name, type_name, value):
@@ -384,6 +492,9 @@ def _check_collider_names(names):
         if not COLLIDER_NAME.match(name):
             raise ParameterError('static_colliders', 'name %r must start with a letter and hold '
                                                      'only letters, digits and _' % name)
+        if DYNAMIC_BODY.match(name):
+            raise ParameterError('static_colliders', 'name %r is how ignored_pairs names a '
+                                                     'dynamic body; choose another' % name)
         if name in RESERVED_NAMES:
             raise ParameterError('static_colliders', "name %r is taken by the node's own "
                                                      'parameters; choose another' % name)

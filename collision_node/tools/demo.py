@@ -22,41 +22,44 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
-from collision_node.pipeline.scenes import ROOM_DYNAMIC_COUNT
+from collision_node.pipeline.scenes import SCENE_BODY_COUNTS
 from collision_node.tools.processes import stop_process
 
 PACKAGE = 'collision_node'
-CONFIG = os.path.join('config', 'default.yaml')
+CONFIGS = {'room': os.path.join('config', 'default.yaml'),  # scene: its node parameters
+           'arm': os.path.join('config', 'arm.yaml')}
 STATUS_SUFFIX = ': collision_check'  # the node's status is '<node name>: collision_check'
 LEVEL_NAMES = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
 CHILD_CHECK_PERIOD_S = 0.5
 STOP_TIMEOUT_S = 5.0  # per signal: SIGINT, then SIGTERM, then SIGKILL
 
 
-def default_config():
-    """Find config/default.yaml: installed (ament index, this Python's prefix) or in the source."""
+def default_config(scene='room'):
+    """Find a scene's config file: installed (ament index, this Python's prefix) or in source."""
+    config = CONFIGS[scene]
     candidates = []
     try:
-        candidates.append(os.path.join(get_package_share_directory(PACKAGE), CONFIG))
+        candidates.append(os.path.join(get_package_share_directory(PACKAGE), config))
     except (PackageNotFoundError, OSError):  # no ament prefix (OSError: none set), e.g. a venv
         pass
-    candidates.append(os.path.join(sys.prefix, 'share', PACKAGE, CONFIG))
+    candidates.append(os.path.join(sys.prefix, 'share', PACKAGE, config))
     source_root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    candidates.append(os.path.join(source_root, CONFIG))
+    candidates.append(os.path.join(source_root, config))
     for path in candidates:
         if os.path.isfile(path):
             return path
-    raise FileNotFoundError('cannot find %s in any of: %s' % (CONFIG, ', '.join(candidates)))
+    raise FileNotFoundError('cannot find %s in any of: %s' % (config, ', '.join(candidates)))
 
 
 def summary(status):
     """Format the node's DiagnosticStatus as one line."""
     values = {item.key: item.value for item in status.values}
-    line = ('%6s ticks/s | %s bodies | %s collisions | tick ms median %s p99 %s '
+    line = ('%6s ticks/s | %s bodies | %s collisions | %s near | tick ms median %s p99 %s '
             '| broad phase %s') % (
         '%.1f' % float(values.get('rate_hz', 'nan')),
         _count(values, 'dynamic_bodies') + _count(values, 'static_bodies'),
-        values.get('colliding_pairs', '?'), values.get('total_ms_median', '?'),
+        values.get('colliding_pairs', '?'), values.get('near_pairs', '?'),
+        values.get('total_ms_median', '?'),
         values.get('total_ms_p99', '?'), values.get('broad_phase') or '-')
     level = int.from_bytes(status.level, 'little')
     if level != 0:
@@ -96,12 +99,12 @@ class Demo(Node):
                 self.finished.set_result(1)
 
 
-def start_children(config, bodies, rate):
+def start_children(config, scene, bodies, rate):
     """Start the node and the pose publisher with this Python; return {name: Popen}."""
     # Own process groups: Ctrl-C reaches only the demo, which stops each child once, in order.
     commands = {
         'collision_node': ['-m', 'collision_node.ros.node', '--ros-args', '--params-file', config],
-        'pose_publisher': ['-m', 'collision_node.tools.pose_publisher', '--scene', 'room',
+        'pose_publisher': ['-m', 'collision_node.tools.pose_publisher', '--scene', scene,
                            '--bodies', str(bodies), '--rate', str(rate)],
     }
     children = {}
@@ -128,22 +131,29 @@ def parse_arguments(argv):
     parser = argparse.ArgumentParser(prog='collision_demo', description=__doc__.split('\n\n')[0])
     parser.add_argument('--duration', type=float, metavar='S',
                         help='stop after S seconds (default: run until Ctrl-C)')
-    parser.add_argument('--bodies', type=int, default=ROOM_DYNAMIC_COUNT, metavar='N',
-                        help='moving boxes in the room (default: %d)' % ROOM_DYNAMIC_COUNT)
+    parser.add_argument('--scene', choices=sorted(CONFIGS), default='room',
+                        help="room: boxes drifting through config/default.yaml's room; arm: "
+                        'a robot arm with filters and a margin, config/arm.yaml (default: room)')
+    parser.add_argument('--bodies', type=int, metavar='N',
+                        help='moving boxes in the room (default: %d)' % SCENE_BODY_COUNTS['room'])
     parser.add_argument('--rate', type=float, default=30.0, metavar='HZ',
                         help='pose messages per second (default: 30)')
     parser.add_argument('--params-file', metavar='FILE',
-                        help="the node's parameters (default: the package's %s)" % CONFIG)
+                        help="the node's parameters (default: the scene's config file)")
     options = parser.parse_args(argv)
     if options.duration is not None and not options.duration > 0.0:
         parser.error('--duration must be positive, got %s' % options.duration)
+    if options.bodies is None:
+        options.bodies = SCENE_BODY_COUNTS[options.scene]
+    elif options.scene == 'arm' and options.bodies != SCENE_BODY_COUNTS['arm']:
+        parser.error('--bodies: the arm has %d links' % SCENE_BODY_COUNTS['arm'])
     if options.bodies < 0:
         parser.error('--bodies must not be negative, got %d' % options.bodies)
     if not options.rate > 0.0:
         parser.error('--rate must be positive, got %s' % options.rate)
     if options.params_file is None:
         try:
-            options.params_file = default_config()
+            options.params_file = default_config(options.scene)
         except FileNotFoundError as error:
             parser.error('%s; pass --params-file' % error)
     elif not os.path.isfile(options.params_file):
@@ -153,9 +163,9 @@ def parse_arguments(argv):
 
 def main(args=None):
     options = parse_arguments(remove_ros_args(args)[1:])
-    print('collision_node on %s, %d boxes moving through the room at %g Hz; Ctrl-C stops'
-          % (options.params_file, options.bodies, options.rate), flush=True)
-    children = start_children(options.params_file, options.bodies, options.rate)
+    print('collision_node on %s, scene %s with %d moving boxes at %g Hz; Ctrl-C stops'
+          % (options.params_file, options.scene, options.bodies, options.rate), flush=True)
+    children = start_children(options.params_file, options.scene, options.bodies, options.rate)
     code = 0
     node = None
     try:

@@ -21,7 +21,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
-from collision_node.pipeline.scenes import make_scene, ROOM_DYNAMIC_COUNT, SCENES
+from collision_node.pipeline.scenes import make_scene, SCENE_BODY_COUNTS, SCENES
 from collision_node.ros.cdr import serialize_pose_array
 from collision_node.tools.processes import spin_until_finished
 
@@ -108,8 +108,9 @@ def parse_arguments(argv):
                         help='moving scene to publish (default: room)')
     source.add_argument('--npy', metavar='FILE', help='publish the frames of this .npy file')
     parser.add_argument('--bodies', type=int, metavar='N',
-                        help='body count of the scene (default: %d for room, else %d)'
-                        % (ROOM_DYNAMIC_COUNT, DEFAULT_BODIES))
+                        help='body count of the scene (default: %s, else %d)'
+                        % (', '.join('%d for %s' % (count, name) for name, count
+                                     in SCENE_BODY_COUNTS.items()), DEFAULT_BODIES))
     parser.add_argument('--seed', type=int, default=0, help='scene seed (default: 0)')
     parser.add_argument('--rate', type=float, default=30.0, metavar='HZ',
                         help='messages per second (default: 30)')
@@ -140,7 +141,7 @@ def main(args=None):
         else:
             bodies = options.bodies
             if bodies is None:
-                bodies = ROOM_DYNAMIC_COUNT if options.scene == 'room' else DEFAULT_BODIES
+                bodies = SCENE_BODY_COUNTS.get(options.scene, DEFAULT_BODIES)
             frames = scene_frames(options.scene, bodies, options.seed)
     except ValueError as error:
         parser.error(str(error))
