@@ -13,10 +13,12 @@ from collision_node.ros.diagnostics import ERROR, Monitor, OK, STAGES, WARN
 REPO = pathlib.Path(__file__).resolve().parents[1]
 WORLD_STATS = {'broad_phase': 'sphere', 'dynamic_bodies': 5, 'static_bodies': 2,
                'still_bodies': 1, 'compared': 17, 'candidate_pairs': 4, 'sat_tests': 3,
-               'colliding_pairs': 2, 'reused': False}
+               'colliding_pairs': 2, 'reused': False, 'filtered_pairs': 6, 'near_pairs': 1,
+               'min_distance': -0.0125, 'min_distance_pair': (3, 0, 1, 1)}
 REQUIRED_KEYS = ['broad_phase', 'dynamic_bodies', 'static_bodies', 'still_bodies',
                  'candidate_pairs', 'sat_tests', 'colliding_pairs', 'compared', 'ticks', 'rate_hz',
-                 'dropped_inputs', 'rejected_inputs', 'last_rejection'] + [
+                 'dropped_inputs', 'rejected_inputs', 'last_rejection', 'filtered_pairs',
+                 'near_pairs', 'min_distance', 'min_distance_pair'] + [
     '%s_ms_%s' % (stage, statistic)
     for stage in ('parse', 'broad', 'narrow', 'output', 'publish', 'total')
     for statistic in ('last', 'median', 'p99', 'max')]
@@ -52,6 +54,12 @@ def test_report_has_every_key_and_the_world_stats():
     assert float(values['narrow_ms_last']) == 3.0 and float(values['total_ms_max']) == 10.0
     assert float(values['output_ms_last']) == 0.5 and float(values['publish_ms_last']) == 3.5
     assert values['sphere.builds'] == '1'  # the broad phase's own counters, named after it
+    assert (values['filtered_pairs'], values['near_pairs']) == ('6', '1')
+    assert (values['min_distance'], values['min_distance_pair']) == ('-0.0125', 'd3-s1')
+    monitor.tick(0.7, [1.0] * 6,
+                 dict(WORLD_STATS, min_distance=float('nan'), min_distance_pair=None))
+    values = dict(monitor.report(1.0, input_timeout_s=5.0)[2])
+    assert values['min_distance'] == values['min_distance_pair'] == ''  # nothing reported
 
 
 def test_stage_statistics_over_the_period():

@@ -188,8 +188,8 @@ def monitor_status():
 
 def test_collision_monitor_prints_the_contacts_and_the_status(ros):
     contacts = np.zeros(2, CLOUD_DTYPE)
-    contacts[0] = (0.125, -0.5, 1.25, 0.0, 0.0, 1.0, 0.0125, 0, 0, 3, 0)
-    contacts[1] = (2.0, 1.5, 0.75, 1.0, 0.0, 0.0, 0.25, 3, 0, 1, 1)
+    contacts[0] = (0.125, -0.5, 1.25, 0.0, 0.0, 1.0, 0.0125, 0, 0, 3, 0, -0.0125)
+    contacts[1] = (2.0, 1.5, 0.75, 1.0, 0.0, 0.0, 0.25, 3, 0, 1, 1, -0.25)
     header = Header(frame_id='world')
     header.stamp.sec, header.stamp.nanosec = 12, 500_000_000
     output = run_monitor_once(ros, contacts_to_cloud(contacts, header), monitor_status())
@@ -247,7 +247,7 @@ def test_demo_prints_a_summary_every_second_until_ctrl_c():
     assert len(ticking) == 4, output + demo.stderr.read()
     assert demo.returncode == 0, output + demo.stderr.read()
     # The room: 40 moving boxes and the 6 static colliders of config/default.yaml.
-    assert re.fullmatch(r' *[0-9.]+ ticks/s \| 46 bodies \| [0-9]+ collisions \| '
+    assert re.fullmatch(r' *[0-9.]+ ticks/s \| 46 bodies \| [0-9]+ collisions \| 0 near \| '
                         r'tick ms median [0-9.]+ p99 [0-9.]+ \| broad phase \w+'
                         r'( \| (WARN|ERROR): .*)?\n',
                         ticking[-1]), ticking[-1]
