@@ -8,7 +8,10 @@ buffer); the medians and percentiles are computed once per period.
 import numpy as np
 
 # diagnostic_msgs/DiagnosticStatus levels (byte values of the message's constants).
-OK, WARN, ERROR = 0, 1, 2
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR', STALE: 'STALE'}
+# The node's status is named '<node name>: collision_check', as diagnostic_updater would.
+STATUS_SUFFIX = ': collision_check'
 STAGES = ('parse', 'broad', 'narrow', 'output', 'publish', 'total')
 TOTAL = STAGES.index('total')
 # Ticks kept per period for the median and p99; faster ticking reports them over the newest

@@ -265,8 +265,9 @@ class CollisionNode(Node):
             time.monotonic(), config.input_timeout_s,
             1.0 / config.tick_rate_hz if config.tick_rate_hz else 0.0)
         status = DiagnosticStatus(
-            level=bytes([level]), name='%s: collision_check' % self.get_name(), message=message,
-            hardware_id='none', values=[KeyValue(key=key, value=value) for key, value in values])
+            level=bytes([level]), name=self.get_name() + diagnostics.STATUS_SUFFIX,
+            message=message, hardware_id='none',
+            values=[KeyValue(key=key, value=value) for key, value in values])
         self._diagnostics_publisher.publish(DiagnosticArray(
             header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
 
