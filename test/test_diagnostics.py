@@ -156,6 +156,21 @@ def test_no_valid_input_is_an_error_unless_disabled():
     assert monitor.report(60.0, input_timeout_s=0.0)[0] == OK
 
 
+def test_no_valid_input_names_the_rejected_ones():
+    monitor = Monitor(0.0)
+    monitor.rejected('frame_id map')
+    monitor.tick(0.5, [1.0] * len(STAGES), WORLD_STATS)  # a valid input: the count restarts
+    assert monitor.report(1.0, input_timeout_s=5.0)[:2] == (
+        WARN, '1 inputs rejected, last: frame_id map')
+    for body in (3, 1, 1):
+        monitor.rejected('dynamic body %d: pose has a NaN or Inf value' % body)
+    assert monitor.report(6.5, input_timeout_s=5.0)[:2] == (
+        ERROR, 'no valid input for 6 s; 3 inputs rejected, last: dynamic body 1: pose has a NaN '
+        'or Inf value')
+    monitor.tick(7.0, [1.0] * len(STAGES), WORLD_STATS)
+    assert monitor.report(13.0, input_timeout_s=5.0)[:2] == (ERROR, 'no valid input for 6 s')
+
+
 def test_dropped_inputs_are_a_total():
     monitor = Monitor(0.0)
     monitor.dropped()

@@ -202,6 +202,18 @@ def test_no_input_is_an_error(harness):
     room.status(lambda s: s.level == DiagnosticStatus.OK)
 
 
+def test_only_rejected_inputs_is_an_error_that_says_why(harness):
+    room = harness(input_timeout_s=0.3)
+    poses = room_poses()
+    poses[1, 0] = np.nan
+    room.publish(poses, sec=1)
+    room.status(lambda s: values(s)['rejected_inputs'] == '1')
+    status = room.status(lambda s: s.level == DiagnosticStatus.ERROR)
+    silent_s, reason = status.message.split(' s; ')
+    assert silent_s.startswith('no valid input for ')
+    assert reason == '1 inputs rejected, last: dynamic body 1: pose has a NaN or Inf value'
+
+
 def test_markers_only_while_subscribed(harness):
     room = harness()
     built = []

@@ -16,16 +16,21 @@ from collision_node.pipeline import scenes
 README = pathlib.Path(__file__).resolve().parent.parent / 'README.md'
 
 
-def python_snippets():
-    """{heading: [code, ...]} for every ```python block of the README."""
-    snippets, heading = {}, None
-    for match in re.finditer(r'^(#+ [^\n]*)$|^```python\n(.*?)^```', README.read_text(),
+def code_blocks(language):
+    """{heading: [code, ...]} for every ```language block of the README ('': no language)."""
+    blocks, heading = {}, None
+    for match in re.finditer(r'^(#+ [^\n]*)$|^```(\w*)\n(.*?)^```', README.read_text(),
                              re.MULTILINE | re.DOTALL):
         if match.group(1):
             heading = match.group(1).lstrip('#').strip()
-        else:
-            snippets.setdefault(heading, []).append(match.group(2))
-    return snippets
+        elif match.group(2) == language:
+            blocks.setdefault(heading, []).append(match.group(3))
+    return blocks
+
+
+def python_snippets():
+    """{heading: [code, ...]} for every ```python block of the README."""
+    return code_blocks('python')
 
 
 def test_every_snippet_has_a_test():

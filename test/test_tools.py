@@ -22,6 +22,7 @@ from std_msgs.msg import Header
 from collision_node.pipeline.scenes import make_scene
 from collision_node.ros.cdr import parse_pose_array
 from collision_node.ros.messages import CLOUD_DTYPE, contacts_to_cloud
+from collision_node.tools.collision_monitor import format_status
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOMAIN_ID = random.randint(1, 200)  # this module's own DDS domain: no cross-talk
@@ -152,20 +153,36 @@ def test_pose_publisher_refuses_a_missing_file():
     assert 'cannot read /nonexistent/poses.npy' in result.stderr
 
 
-def run_monitor_once(ros, cloud, status):
-    """Publish ``cloud`` and ``status`` until ``collision_monitor --once`` exits."""
+def run_monitor_once(ros, cloud, status, stale_status=None, *arguments):
+    """Publish ``cloud`` and ``status`` until ``collision_monitor --once`` exits.
+
+    ``stale_status``, if given, is published alone first, until the monitor has heard it
+    (its subscriptions matched, reliable), as a node's status before its first answer.
+    Returns the monitor's exit status, its output and its errors.
+    """
     node, executor = ros
     cloud_publisher = node.create_publisher(PointCloud2, 'collisions', RELIABLE)
     diagnostics_publisher = node.create_publisher(DiagnosticArray, '/diagnostics',
                                                   RELIABLE)
-    process = start_tool('collision_monitor', '--once')
+    process = start_tool('collision_monitor', '--once', *arguments)
     last_sent = [0.0]
+    stale_sent = [0]
 
     def publish():
-        if time.monotonic() - last_sent[0] > 0.2:
+        if time.monotonic() - last_sent[0] < 0.2:
+            return
+        last_sent[0] = time.monotonic()
+        matched = cloud_publisher.get_subscription_count() > 0 \
+            and diagnostics_publisher.get_subscription_count() > 0
+        if stale_status is not None and stale_sent[0] < 3:
+            diagnostics_publisher.publish(DiagnosticArray(header=cloud.header,
+                                                          status=[stale_status]))
+            stale_sent[0] += matched  # counted once the monitor is sure to receive it
+            return
+        if cloud is not None:
             cloud_publisher.publish(cloud)
+        if status is not None:
             diagnostics_publisher.publish(DiagnosticArray(header=cloud.header, status=[status]))
-            last_sent[0] = time.monotonic()
 
     try:
         spin_until(executor, lambda: process.poll() is not None, every=publish)
@@ -174,25 +191,31 @@ def run_monitor_once(ros, cloud, status):
         process.kill()
         node.destroy_publisher(cloud_publisher)
         node.destroy_publisher(diagnostics_publisher)
-    assert process.returncode == 0, errors
-    return output
+    return process.returncode, output, errors
 
 
-def monitor_status():
+def monitor_status(level=DiagnosticStatus.WARN, message='a tick took longer than the input '
+                   'period', name='collision_node: collision_check'):
     return DiagnosticStatus(
-        level=DiagnosticStatus.WARN, name='collision_node: collision_check',
-        message='a tick took longer than the input period', hardware_id='none',
+        level=level, name=name, message=message, hardware_id='none',
         values=[KeyValue(key='broad_phase', value='brute_force'),
-                KeyValue(key='colliding_pairs', value='2')])
+                KeyValue(key='colliding_pairs', value='2'),
+                KeyValue(key='last_rejection', value='dynamic body 1: pose has a NaN or Inf '
+                         'value, said at length to pass the width of a terminal line')])
 
 
-def test_collision_monitor_prints_the_contacts_and_the_status(ros):
+def monitor_cloud():
     contacts = np.zeros(2, CLOUD_DTYPE)
     contacts[0] = (0.125, -0.5, 1.25, 0.0, 0.0, 1.0, 0.0125, 0, 0, 3, 0, -0.0125)
     contacts[1] = (2.0, 1.5, 0.75, 1.0, 0.0, 0.0, 0.25, 3, 0, 1, 1, -0.25)
     header = Header(frame_id='world')
     header.stamp.sec, header.stamp.nanosec = 12, 500_000_000
-    output = run_monitor_once(ros, contacts_to_cloud(contacts, header), monitor_status())
+    return contacts_to_cloud(contacts, header)
+
+
+def test_collision_monitor_prints_the_contacts_and_the_status(ros):
+    code, output, errors = run_monitor_once(ros, monitor_cloud(), monitor_status())
+    assert code == 0, errors
 
     lines = output.splitlines()
     collisions = [line for line in lines if line.startswith('collisions')]
@@ -200,14 +223,56 @@ def test_collision_monitor_prints_the_contacts_and_the_status(ros):
     assert "collisions at 12.500 in 'world': 2 pairs" in collisions[0]
     assert 'd0-d3 0.0125 m at (0.125, -0.500, 1.250) n (0.000, 0.000, 1.000)' in collisions[0]
     assert 'd3-s1 0.25 m at (2.000, 1.500, 0.750) n (1.000, 0.000, 0.000)' in collisions[0]
-    assert ('diagnostics WARN collision_node: collision_check: a tick took longer than the '
-            'input period') in lines
-    assert '    broad_phase=brute_force colliding_pairs=2' in lines
+    status = lines[lines.index(collisions[0]) + 1:]
+    assert status == [
+        'diagnostics WARN collision_node: collision_check: a tick took longer than the input '
+        'period',
+        '    broad_phase=brute_force',
+        '    colliding_pairs=2',
+        '    last_rejection=dynamic body 1: pose has a NaN or Inf value, said at length to pass '
+        'the width of a terminal line']
+
+
+def test_collision_monitor_once_prints_the_status_after_the_answer(ros):
+    stale = monitor_status(DiagnosticStatus.ERROR, 'no valid input for 8 s')
+    fresh = monitor_status(DiagnosticStatus.OK, '1 ticks at 1.0 Hz')
+    code, output, errors = run_monitor_once(ros, monitor_cloud(), fresh, stale)
+    assert code == 0, errors
+    assert 'ERROR' not in output
+    assert [line for line in output.splitlines() if line.startswith('diagnostics')] == [
+        'diagnostics OK collision_node: collision_check: 1 ticks at 1.0 Hz']
+
+
+def test_collision_monitor_once_skips_other_nodes_statuses(ros):
+    other = monitor_status(name='battery_monitor: charge')
+    code, output, errors = run_monitor_once(ros, monitor_cloud(), other, None, '--timeout', '3')
+    assert code == 1 and 'diagnostics' not in output
+    assert errors == 'collision_monitor: no status of the node after the collisions message ' \
+        'within 3 s\n'
+
+
+def test_collision_monitor_once_gives_up_after_its_timeout(ros):
+    started = time.monotonic()
+    code, output, errors = run_monitor_once(ros, None, None, None, '--timeout', '2')
+    assert code == 1 and output == ''
+    assert errors == 'collision_monitor: no collisions message within 2 s (is collision_node ' \
+        'running, and did an input reach it?)\n'
+    assert time.monotonic() - started < 2.0 + TOOL_TIMEOUT_S / 2  # a process start on top
+
+
+def test_collision_monitor_writes_a_line_break_in_a_value_as_backslash_n():
+    status = DiagnosticStatus(level=DiagnosticStatus.WARN, name='n: collision_check',
+                              message="1 inputs rejected, last: frame_id 'a\nb'",
+                              values=[KeyValue(key='last_rejection', value="frame_id 'a\nb'")])
+    assert format_status(status).split('\n') == [
+        "WARN n: collision_check: 1 inputs rejected, last: frame_id 'a\\nb'",
+        "    last_rejection=frame_id 'a\\nb'"]
 
 
 def test_collision_monitor_reports_a_cloud_it_cannot_read(ros):
     cloud = PointCloud2(header=Header(frame_id='world'), height=1, width=0, point_step=12)
-    output = run_monitor_once(ros, cloud, monitor_status())
+    code, output, errors = run_monitor_once(ros, cloud, monitor_status())
+    assert code == 0, errors
     assert 'collisions: unreadable cloud: not a collisions cloud: fields' in output
 
 

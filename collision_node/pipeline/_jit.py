@@ -25,10 +25,19 @@ JIT_OPTIONS = {
 # One directory per user: another user's cache directory would not be writable.
 FALLBACK_CACHE_DIR = os.path.join(tempfile.gettempdir(),
                                   'collision_node-numba-cache-%d' % os.getuid())
+# Every kernel decorated so far (numba dispatchers), for the compile progress to count
+# (collision_node.pipeline.jit_progress).
+KERNELS = set()
 
 
 def kernel(function):
     """Compile ``function`` with the package's JIT options."""
+    dispatcher = _njit(function)
+    KERNELS.add(dispatcher)
+    return dispatcher
+
+
+def _njit(function):
     try:
         return numba.njit(**JIT_OPTIONS)(function)
     except RuntimeError as error:

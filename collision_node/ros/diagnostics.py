@@ -8,7 +8,10 @@ buffer); the medians and percentiles are computed once per period.
 import numpy as np
 
 # diagnostic_msgs/DiagnosticStatus levels (byte values of the message's constants).
-OK, WARN, ERROR = 0, 1, 2
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR', STALE: 'STALE'}
+# The node's status is named '<node name>: collision_check', as diagnostic_updater would.
+STATUS_SUFFIX = ': collision_check'
 STAGES = ('parse', 'broad', 'narrow', 'output', 'publish', 'total')
 TOTAL = STAGES.index('total')
 # Ticks kept per period for the median and p99; faster ticking reports them over the newest
@@ -33,6 +36,7 @@ class Monitor:
         self._rejected = 0          # this period
         self._dropped_total = 0     # since start
         self._rejected_total = 0    # since start
+        self._rejected_since_valid = 0  # since the last valid input (or the start)
         self._last_rejection = ''   # since start
         self._last_valid_s = start_s
         self._world = dict.fromkeys(WORLD_KEYS, 0)
@@ -55,6 +59,7 @@ class Monitor:
         """Count an input refused for ``reason`` (no collisions were published for it)."""
         self._rejected += 1
         self._rejected_total += 1
+        self._rejected_since_valid += 1
         self._last_rejection = reason
 
     def tick(self, now_s, stage_ms, world_stats):
@@ -65,6 +70,7 @@ class Monitor:
         np.maximum(self._period_max, self._last, out=self._period_max)
         self._ticks += 1
         self._last_valid_s = now_s
+        self._rejected_since_valid = 0
         for key in WORLD_KEYS:
             self._world[key] = world_stats[key]
         self._world['reused_result'] = world_stats.get('reused', False)
@@ -108,9 +114,10 @@ class Monitor:
         slowest_ms = self._period_max[TOTAL]
         if input_timeout_s > 0.0 and silent_s >= input_timeout_s:
             level, message = ERROR, 'no valid input for %.3g s' % silent_s
+            if self._rejected_since_valid:  # inputs came, all bad: say why they were refused
+                message += '; ' + self._rejections(self._rejected_since_valid)
         elif self._rejected:
-            level = WARN
-            message = '%d inputs rejected, last: %s' % (self._rejected, self._last_rejection)
+            level, message = WARN, self._rejections(self._rejected)
         elif self._ticks and input_period and slowest_ms > 1e3 * input_period:
             level, message = WARN, 'a tick took %.3g ms, longer than the input period %.3g ms' \
                 % (slowest_ms, 1e3 * input_period)
@@ -121,6 +128,9 @@ class Monitor:
         self._ticks = self._received = self._dropped = self._rejected = 0
         self._period_max[:] = 0.0
         return level, message, values
+
+    def _rejections(self, count):
+        return '%d inputs rejected, last: %s' % (count, self._last_rejection)
 
 
 def pair_name(id_a, type_a, id_b, type_b):

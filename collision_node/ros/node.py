@@ -27,10 +27,12 @@ at most a tenth of the node's time (see MARKER_COST_FACTOR). They are written as
 :mod:`collision_node.ros.markers` (numpy, ~0.2 µs a marker instead of rclpy's ~13 µs).
 
 JIT. The kernels are compiled (or loaded from numba's cache) by a warm-up before the
-subscription exists, so no tick ever compiles. numba caches next to the sources when that
-directory is writable and otherwise in its user-wide cache (~/.cache/numba); NUMBA_CACHE_DIR
-overrides both. The node leaves that choice to numba: the variable must be set before numba is
-imported, which is the launching environment's business, not the node's.
+subscription exists, so no tick ever compiles; a compile is logged as it goes (about 30 s, once;
+.ci/setup-venv compiles ahead with collision_node.tools.compile_kernels). numba caches next to
+the sources when that directory is writable and otherwise in its user-wide cache
+(~/.cache/numba); NUMBA_CACHE_DIR overrides both. The node leaves that choice to numba: the
+variable must be set before numba is imported, which is the launching environment's business,
+not the node's.
 """
 import copy
 import math
@@ -52,6 +54,7 @@ from visualization_msgs.msg import MarkerArray
 
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.contacts import CONTACT_DTYPE
+from collision_node.pipeline.jit_progress import compile_progress
 from collision_node.pipeline.world import warm_up, World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import CdrError, parse_pose_array
@@ -100,11 +103,9 @@ class CollisionNode(Node):
         self._world_lock = threading.Lock()
 
         start = time.perf_counter()
-        warm_up()
+        with compile_progress(self.get_logger().info):
+            compile_kernels()
         self._cloud_writer = CloudWriter()
-        warm_contacts = np.zeros(1, CONTACT_DTYPE)
-        warm_contacts.flags.writeable = False  # as World.step returns them
-        self._cloud_writer.serialize(warm_contacts, 0, 0, '')  # its kernel too
         self.get_logger().info('JIT warm-up of %d broad phases took %.2f s'
                                % (len(NAMES), time.perf_counter() - start))
 
@@ -275,10 +276,19 @@ class CollisionNode(Node):
             time.monotonic(), config.input_timeout_s,
             1.0 / config.tick_rate_hz if config.tick_rate_hz else 0.0)
         status = DiagnosticStatus(
-            level=bytes([level]), name='%s: collision_check' % self.get_name(), message=message,
-            hardware_id='none', values=[KeyValue(key=key, value=value) for key, value in values])
+            level=bytes([level]), name=self.get_name() + diagnostics.STATUS_SUFFIX,
+            message=message, hardware_id='none',
+            values=[KeyValue(key=key, value=value) for key, value in values])
         self._diagnostics_publisher.publish(DiagnosticArray(
             header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+
+
+def compile_kernels():
+    """Compile every kernel a tick can run, or load it from numba's cache."""
+    warm_up()
+    contacts = np.zeros(1, CONTACT_DTYPE)
+    contacts.flags.writeable = False  # as World.step returns them
+    CloudWriter().serialize(contacts, 0, 0, '')  # the cloud's kernel
 
 
 def main(args=None):

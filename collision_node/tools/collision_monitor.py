@@ -1,15 +1,20 @@
 """Print the node's `collisions` and `/diagnostics` as readable lines.
 
     collision_monitor                 # a collisions summary every second, each diagnostics status
-    collision_monitor --once          # one collisions message and one status, then exit
+    collision_monitor --once          # the next collisions message and the status after it
 
 Contacts are written ``d3-s1 0.012 m at (x, y, z) n (nx, ny, nz)``: dynamic body 3 (index in
 the PoseArray) touches static collider 1 (index in static_colliders), 12 mm deep, at that
-contact point, with the unit normal from the first body to the second.
+contact point, with the unit normal from the first body to the second. A status is its level,
+name and message, then one ``key=value`` line per value, so that grep finds any of them.
+
+``--once`` prints the first collisions message, then the first status of the node
+(``<name>: collision_check``) published after it, which describes that answer: a status from
+before the answer may still be the ERROR of the time before any input came. It gives up after
+``--timeout`` seconds with exit status 1.
 """
 import argparse
 import sys
-import textwrap
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
@@ -18,12 +23,15 @@ from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import PointCloud2
 
+from collision_node.ros.diagnostics import LEVEL_NAMES, STATUS_SUFFIX
 from collision_node.ros.messages import cloud_to_contacts
 from collision_node.tools.processes import spin_until_finished
 
 BODY_TYPE_LETTERS = {0: 'd', 1: 's'}  # type 0 = dynamic, 1 = static (DESIGN §3)
-LEVEL_NAMES = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
-LINE_WIDTH = 99
+# A value's line breaks are written as \n: a value never continues on the next line. (A
+# rejection reason quotes the input's frame_id, which may hold anything.)
+LINE_BREAKS = str.maketrans({'\n': '\\n', '\r': '\\r'})
+ONCE_TIMEOUT_S = 60.0
 
 
 def format_contacts(contacts, limit):
@@ -41,23 +49,22 @@ def format_contacts(contacts, limit):
 
 
 def format_status(status):
-    """Format a DiagnosticStatus as a header line and its key=value pairs wrapped below."""
+    """Format a DiagnosticStatus as a header line, then one indented key=value line per value."""
     level = LEVEL_NAMES.get(int.from_bytes(status.level, 'little'), repr(status.level))
-    header = '%s %s: %s' % (level, status.name, status.message)
-    pairs = ' '.join('%s=%s' % (item.key, item.value) for item in status.values)
-    body = textwrap.fill(pairs, LINE_WIDTH, initial_indent='    ', subsequent_indent='    ',
-                         break_long_words=False, break_on_hyphens=False)
-    return header + ('\n' + body if body else '')
+    lines = ['%s %s: %s' % (level, status.name, status.message)]
+    lines += ['    %s=%s' % (item.key, item.value) for item in status.values]
+    return '\n'.join(line.translate(LINE_BREAKS) for line in lines)
 
 
 class CollisionMonitor(Node):
     """Subscribes to collisions and /diagnostics and prints them."""
 
-    def __init__(self, period_s, contact_limit, once):
+    def __init__(self, period_s, contact_limit, once, timeout_s=ONCE_TIMEOUT_S):
         super().__init__('collision_monitor')
         self.contact_limit = contact_limit
         self.once = once
-        self.finished = Future()
+        self.timeout_s = timeout_s
+        self.finished = Future()  # result: the exit status
         self.clouds_in_period = 0
         self.latest_cloud = None
         self.printed_cloud = False
@@ -67,7 +74,9 @@ class CollisionMonitor(Node):
                          reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(PointCloud2, 'collisions', self.on_collisions, qos)
         self.create_subscription(DiagnosticArray, '/diagnostics', self.on_diagnostics, qos)
-        if not once:
+        if once:
+            self.timeout_timer = self.create_timer(timeout_s, self.give_up)
+        else:
             self.create_timer(period_s, self.print_collisions)
 
     def on_collisions(self, msg):
@@ -99,7 +108,9 @@ class CollisionMonitor(Node):
     def on_diagnostics(self, msg):
         statuses = msg.status
         if self.once:
-            statuses = [] if self.printed_status else statuses[:1]
+            if not self.printed_cloud or self.printed_status:
+                return
+            statuses = [s for s in statuses if s.name.endswith(STATUS_SUFFIX)][:1]
         for status in statuses:
             print('diagnostics ' + format_status(status), flush=True)
             self.printed_status = True
@@ -107,8 +118,22 @@ class CollisionMonitor(Node):
 
     def check_done(self):
         if self.once and self.printed_cloud and self.printed_status:
-            if not self.finished.done():
-                self.finished.set_result(True)
+            self.finish(0)
+
+    def give_up(self):
+        if self.printed_cloud:
+            problem = 'no status of the node after the collisions message within %g s'
+        else:
+            problem = 'no collisions message within %g s (is collision_node running, and did ' \
+                'an input reach it?)'
+        print('collision_monitor: ' + problem % self.timeout_s, file=sys.stderr, flush=True)
+        self.finish(1)
+
+    def finish(self, exit_status):
+        if self.once:
+            self.timeout_timer.cancel()
+        if not self.finished.done():
+            self.finished.set_result(exit_status)
 
 
 def parse_arguments(argv):
@@ -116,7 +141,11 @@ def parse_arguments(argv):
         prog='collision_monitor', description=__doc__.split('\n\n')[0],
         epilog='ROS arguments may follow --ros-args (e.g. -r collisions:=/other).')
     parser.add_argument('--once', action='store_true',
-                        help='print one collisions message and one diagnostics status, exit')
+                        help="print the next collisions message and the node's status after "
+                        'it, then exit')
+    parser.add_argument('--timeout', type=float, default=ONCE_TIMEOUT_S, metavar='S',
+                        help='with --once: give up after S seconds, exit status 1 (default: '
+                        '%g)' % ONCE_TIMEOUT_S)
     parser.add_argument('--period', type=float, default=1.0, metavar='S',
                         help='seconds between collisions lines (default: 1)')
     parser.add_argument('--contacts', type=int, default=5, metavar='N',
@@ -126,13 +155,16 @@ def parse_arguments(argv):
         parser.error('--period must be positive, got %s' % options.period)
     if options.contacts < 0:
         parser.error('--contacts must not be negative, got %d' % options.contacts)
+    if not options.timeout > 0.0:
+        parser.error('--timeout must be positive, got %s' % options.timeout)
     return options
 
 
 def main(args=None):
+    """Run the monitor; the exit status is 1 when --once timed out, else 0."""
     options = parse_arguments(remove_ros_args(args)[1:])
-    spin_until_finished(args, lambda: CollisionMonitor(options.period, options.contacts,
-                                                       options.once))
+    return spin_until_finished(args, lambda: CollisionMonitor(
+        options.period, options.contacts, options.once, options.timeout))
 
 
 if __name__ == '__main__':

@@ -23,13 +23,12 @@ from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
 from collision_node.pipeline.scenes import SCENE_BODY_COUNTS
+from collision_node.ros.diagnostics import LEVEL_NAMES, STATUS_SUFFIX
 from collision_node.tools.processes import stop_process
 
 PACKAGE = 'collision_node'
 CONFIGS = {'room': os.path.join('config', 'default.yaml'),  # scene: its node parameters
            'arm': os.path.join('config', 'arm.yaml')}
-STATUS_SUFFIX = ': collision_check'  # the node's status is '<node name>: collision_check'
-LEVEL_NAMES = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
 CHILD_CHECK_PERIOD_S = 0.5
 STOP_TIMEOUT_S = 5.0  # per signal: SIGINT, then SIGTERM, then SIGKILL
 

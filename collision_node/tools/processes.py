@@ -9,8 +9,8 @@ from rclpy.executors import ExternalShutdownException
 def spin_until_finished(args, make_node):
     """Init rclpy with ``args``, spin ``make_node()`` until its ``finished`` future is done.
 
-    Ctrl-C and an external shutdown end the spin quietly; the node is destroyed and rclpy
-    shut down either way.
+    Returns the future's result, or None when Ctrl-C or an external shutdown ended the spin
+    first (quietly). The node is destroyed and rclpy shut down either way.
     """
     rclpy.init(args=args)
     node = make_node()
@@ -21,6 +21,7 @@ def spin_until_finished(args, make_node):
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+    return node.finished.result() if node.finished.done() else None
 
 
 def stop_process(process, timeout_s, on_timeout=lambda signal_name: None):

@@ -1,0 +1,82 @@
+"""The README's "Publishing poses from a script", run as written through real pub/sub.
+
+The node and the monitor start from the README's own command lines (``.venv/bin/`` being this
+Python's venv), the script is the README's snippet saved as ``my_poses.py``, and the monitor
+must print the README's lines. Masked are only what a clock decides: the stamp, and the level
+and message of the status (``1 ticks at 1.0 Hz`` measures the period the tick fell in).
+"""
+import os
+import random
+import re
+import shlex
+import subprocess
+import sys
+import time
+
+import rclpy
+from ros_helpers import make_context, node_environment, REPO
+from test_readme import code_blocks, python_snippets
+
+from collision_node.tools.processes import stop_process
+
+DOMAIN_ID = random.Random(os.getpid() + 23).randint(1, 200)
+SECTION = 'Publishing poses from a script'
+START_TIMEOUT_S = 120.0  # the node compiles its kernels first when numba's cache is empty
+STOP_TIMEOUT_S = 10.0
+MASKS = [(r'^collisions at [0-9.]+ ', 'collisions at <stamp> '),
+         (r'^(diagnostics) \w+ (.*: collision_check): .*$', r'\1 <level> \2: <message>')]
+
+
+def command(line):
+    """Split a README command line; take its ``.venv/bin/`` program from this Python's venv."""
+    words = shlex.split(line)
+    if words[0].startswith('.venv/bin/'):
+        words[0] = os.path.join(os.path.dirname(sys.executable), os.path.basename(words[0]))
+    return words
+
+
+def masked(text):
+    for pattern, replacement in MASKS:
+        text = re.sub(pattern, replacement, text, flags=re.MULTILINE)
+    return text
+
+
+def shown_as(expected):
+    """Return a regular expression for the README's output; a ``...`` line is any lines."""
+    return ''.join(r'(?:.*\n)*' if line.strip() == '...' else re.escape(line) + '\n'
+                   for line in masked(expected).splitlines())
+
+
+def test_the_script_gets_its_answer_to_the_monitor(tmp_path):
+    node_line, monitor_line, script_line = code_blocks('bash')[SECTION][0].splitlines()
+    snippet, = python_snippets()[SECTION]
+    expected, = code_blocks('')[SECTION]
+    (tmp_path / 'my_poses.py').write_text(snippet)
+    env = node_environment(DOMAIN_ID)
+    context = make_context(DOMAIN_ID)
+    observer = rclpy.create_node('observer', context=context)
+    with open(tmp_path / 'node.log', 'w') as node_log:
+        node = subprocess.Popen(command(node_line), cwd=REPO, env=env, stdout=node_log,
+                                stderr=subprocess.STDOUT)
+    monitor = subprocess.Popen(command(monitor_line), cwd=REPO, env=env,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        # As the README has it, the monitor listens before the script publishes: both ends of
+        # `collisions` are in the graph (the node makes its publisher after its warm-up).
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while not (observer.count_publishers('/collisions')
+                   and observer.count_subscribers('/collisions')):
+            assert node.poll() is None and monitor.poll() is None
+            assert time.monotonic() < deadline, 'the node or the monitor did not start'
+            time.sleep(0.1)
+        script = subprocess.run(command(script_line), cwd=tmp_path, env=env,
+                                capture_output=True, text=True, timeout=START_TIMEOUT_S)
+        assert script.returncode == 0, script.stderr
+        output, errors = monitor.communicate(timeout=START_TIMEOUT_S)
+    finally:
+        monitor.kill()
+        stop_process(node, STOP_TIMEOUT_S)
+        observer.destroy_node()
+        context.try_shutdown()
+    assert monitor.returncode == 0, errors + (tmp_path / 'node.log').read_text()
+    assert re.fullmatch(shown_as(expected), masked(output)), output
