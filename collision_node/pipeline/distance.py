@@ -2,7 +2,8 @@
 
 :func:`box_distance` is a per-pair kernel in sat.py's notation (everything in box A's frame:
 ``rel`` = AᵀB row-major with rel[3i + j] = a_i·b_j, ``t`` = Aᵀ(c_B − c_A), half extents
-``ea``, ``eb``); :func:`box_distance_between` is its validating wrapper in world coordinates.
+``ea``, ``eb``). sat.py calls it for pairs within their margin; ``sat.signed_distance``
+is the validating one-pair query in world coordinates, on the same path.
 
 Why it is exact (a finite candidate list that always holds a closest pair):
 
@@ -22,11 +23,17 @@ Why it is exact (a finite candidate list that always holds a closest pair):
 * Which edges: c_A ∈ A and c_B ∈ B give n·(c_B − c_A) ≥ n·(q − p) = |n|² > 0, so n = λc
   with sign(λ) = sign(c·t). G_A ⊂ F_A fixes A's coordinates k ≠ i to sign(n_k)·ea_k, free
   where n_k = 0; G_B ⊂ F_B fixes B's coordinates m ≠ j to −sign(n·b_m)·eb_m, free where
-  n·b_m = 0. Every sign whose computed value is within rounding of 0 is tried both ways (a
-  face parallel to n has two support edges; at touching, c·t itself may round either way):
-  normally one edge pair per axis, at most 2 · 2 · 2 in degenerate configurations. Edges
-  whose cross product is shorter than sat.MIN_EDGE_AXIS_LENGTH are skipped: their best
-  crossing is no closer than their end points (vertex candidates) by more than that × size.
+  n·b_m = 0. A sign is tried both ways when its value is 0 (c's components are entries of
+  ``rel``, exact) or, for the computed c·t and c·b_m, within rounding of 0 (a face parallel
+  to n has two support edges; at touching, c·t itself may round either way): normally one
+  edge pair per axis, at most 2 · 2 · 2 in degenerate configurations.
+* Which axes: the gap between the boxes' projections on any axis (the SAT separation) is a
+  lower bound of the distance, and on the crossing's axis c it is the distance (the support
+  edges lie in the two support planes ⊥ c, and cross). So c has the largest separation of
+  all 15 axes, and only edge axes within rounding of the largest are tried (normally none or
+  one; several on parallel faces). Edges whose cross product is shorter than
+  sat.MIN_EDGE_AXIS_LENGTH (1e-150) are skipped: near-parallel segments at an angle θ that
+  cross have an end point within 2 · length · sin θ of the crossing's distance.
 * Every candidate is a true pair of points of the two boxes, so extra candidates cannot
   make the answer smaller than the distance; the argument above shows that the list holds a
   closest pair. test/exact_distance.py checks every vertex–box and all 144 edge–edge pairs in
@@ -36,32 +43,37 @@ Segment–segment closest points (one edge pair): Ericson's clamped scheme (Real
 Detection, 5.1.9), except that the parameter on A's edge comes from s = r·(b_j × c) / |c|²,
 r = (B's edge centre) − (A's edge centre): the textbook (b·f − c·e) / (1 − b²) loses
 eps·|r| / sin²θ to cancellation for edges at an angle θ, this form eps·|r| / sin θ, and an
-error Δs in s moves the pair's distance by only sin θ · Δs, i.e. eps·|r|. The point on B's
-edge is the projection of A's (clamped), and when it is clamped A's is projected again, so
-rounding near the segments' ends costs no more. A lower bound (r·c)² / |c|² ≥ the best
-distance² so far (the distance of the two lines) skips an edge pair early.
+error Δs in s moves the pair's distance by only sin θ · Δs, i.e. eps·|r| (the tests see the
+difference: 1e-10 of the size against 1e-15 on near-parallel edges). The point on B's edge is
+the projection of A's (clamped), and when it is clamped A's is projected again, so rounding
+near the segments' ends costs no more. The distance of the two lines, (r·c)² / |c|², is a
+lower bound that skips the pair when it is no less than the best distance² so far.
 
 Precision. The kernel's result is the exact distance of the boxes that ``rel`` and ``t``
-describe (B's axes orthonormal only to rounding) up to a few eps × (Σ half extents + |t|);
-that input is itself within a few eps of the exact boxes, and the distance moves no more than
-the boxes do. Tested against the exact referee within 1e-9 × (Σ half extents of both boxes),
-for offsets up to 1e6 m (the kernel only sees the relative pose), 1e-6-thin plates and
-needles, and gaps from 1e-12 to 10 × the size: the errors seen are ~1e-16 of the size.
+describe (B's axes orthonormal only to rounding; the vertex tests take Bᵀ for B⁻¹) up to a
+few eps × (Σ half extents + |t|); that input is itself within a few eps of the exact boxes,
+and the distance moves no more than the boxes do. Checked against the exact referee on the
+hard classes of test/test_distance.py (parallel, turned and tilted faces, crossed, skew and
+near-parallel edges, vertex cases, 1e-6-thin plates and needles; sizes 1e-3 to 1e3 m, offsets
+up to 1e6 m, gaps 1e-12 to 10 × the size): within 4 eps × (Σ half extents + distance), far
+inside the 1e-9 × Σ half extents that the tests require.
 
-Cost: 16 vertex–box tests (~20 flops each) and 9 edge pairs (~50 flops and one division
-each, fewer when the lower bound skips them), squared distances throughout, one square root.
-See test/distance_bench.py for the time per pair.
+Cost: the 16 vertex–box tests (~20 flops each), the 15 SAT separations (as sat.py computes
+them, one square root each for the 9 edge axes), then the edge pairs of the axes left
+(~50 flops and one division each), squared distances throughout, one square root at the end.
+About 100 ns per pair on random near pairs (test/distance_bench.py; the SAT alone, which
+stops at the first separating axis, takes ~22 ns on them).
 
-Why not GJK/EPA: they iterate to a tolerance, and flat contacts are their worst case (a face
-parallel to a face makes the support mapping jump between vertices). FCL's GJK distance, for
-one, returns wrong distances for flush or face-parallel boxes and disagrees with its own
-box–box collide path (test/test_distance.py measures it, and coal's). Boxes have few enough
-features for an exhaustive but pruned candidate list to cost about what GJK does.
+Why not GJK/EPA: they iterate to a tolerance, and face-parallel contacts are their worst case
+(the support mapping jumps between vertices). Measured in test/test_distance.py: FCL's GJK
+distance is off by 15 % of the size on parallel faces, and answers "colliding" (-1) for
+separated pairs that its own fcl.collide calls separated; coal with its default tolerance
+answers 0, a negative depth or -DBL_MAX for pairs up to 1e-6 m apart. Boxes have few enough
+features for an exhaustive, pruned candidate list to be exact at about 100 ns a pair.
 
 Overlapping boxes: the kernel's value is the distance of some pair of points of the two boxes:
 0 when a vertex of one lies in the other or two edges cross, but it can be > 0 (two needles
-crossing like a plus sign). The SAT tells overlap; the wrapper runs it first and returns 0
-with a common point for colliding pairs.
+crossing like a plus sign). The SAT tells overlap and runs this only for separated pairs.
 """
 import math
 
@@ -74,7 +86,9 @@ from collision_node.pipeline.obb import EPS, TIE_ULPS
 
 # A sign computed as x + y (two rounded products) is trusted when |x + y| exceeds this many
 # ulps of |x| + |y|; closer to 0 both signs are tried. The sum's rounding error is below
-# 2 ulps of |x| + |y|; extra candidates only cost time.
+# 2 ulps of |x| + |y|; extra candidates only cost time. (The tests pass without it too: when
+# a face is parallel to n within rounding, the closest set has other extreme points that the
+# other axes find. The proof needs it.)
 SIGN_ULPS = 16.0
 
 
@@ -83,7 +97,7 @@ SIGN_ULPS = 16.0
 
 @kernel
 def box_distance(rel, t, ea, eb):
-    """Return ``(distance, p, q)``: the distance of boxes A and B and closest points p ∈ A, q ∈ B.
+    """Return ``(distance, p, q)``: the boxes' distance, closest points p ∈ A and q ∈ B.
 
     All in A's frame (3-tuples), sat.py's notation: ``rel`` = AᵀB row-major (9-tuple),
     ``t`` = Aᵀ(c_B − c_A), ``ea``, ``eb`` the half extents. Exact up to float64 rounding for

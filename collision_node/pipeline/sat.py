@@ -122,6 +122,12 @@ def collide_pairs(centers, rotations, half_extents, radii, pairs, sphere_prefilt
     return status, depth, normal, point, sat_tests
 
 
+# Rotation matrices must be orthonormal to this (max |RᵀR − I|) for signed_distance: float64
+# rotations built from a normalised quaternion are off by ~1e-16; one stored as float32 (1e-7)
+# would move the distance by more than the accuracy the kernels promise.
+ORTHONORMAL_TOLERANCE = 1e-12
+
+
 def signed_distance(center_a, rotation_a, half_extents_a, center_b, rotation_b,
                     half_extents_b):
     """Return ``(distance, point_a, point_b)`` of two boxes, by the World's own code path.
@@ -129,28 +135,42 @@ def signed_distance(center_a, rotation_a, half_extents_a, center_b, rotation_b,
     Centres (3,), rotation matrices (3, 3) with the box axes as columns, half extents (3,).
     Apart: the exact distance (> 0) and the closest points of A and B. Touching or
     overlapping: minus the penetration depth (≤ 0), both points the contact point. This is
-    :func:`collide_pairs` with an infinite margin. Raises ValueError on bad shapes or NaN/Inf.
+    :func:`collide_pairs` with an infinite margin. Raises ValueError on wrong shapes,
+    non-finite values, negative half extents or rotations that are not orthonormal.
     """
-    arrays = []
-    for name, value, shape in (('center_a', center_a, (3,)), ('center_b', center_b, (3,)),
-                               ('rotation_a', rotation_a, (3, 3)),
-                               ('rotation_b', rotation_b, (3, 3)),
-                               ('half_extents_a', half_extents_a, (3,)),
-                               ('half_extents_b', half_extents_b, (3,))):
-        array = np.asarray(value, dtype=np.float64)
-        if array.shape != shape or not np.all(np.isfinite(array)):
-            raise ValueError('%s must be finite with shape %s, got %r' % (name, shape, value))
-        arrays.append(array)
-    center_a, center_b, rotation_a, rotation_b, half_extents_a, half_extents_b = arrays
+    center_a = _checked(center_a, (3,), 'center_a')
+    center_b = _checked(center_b, (3,), 'center_b')
+    rotation_a = _checked(rotation_a, (3, 3), 'rotation_a')
+    rotation_b = _checked(rotation_b, (3, 3), 'rotation_b')
+    half_extents_a = _checked(half_extents_a, (3,), 'half_extents_a')
+    half_extents_b = _checked(half_extents_b, (3,), 'half_extents_b')
+    for name, rotation in (('rotation_a', rotation_a), ('rotation_b', rotation_b)):
+        if np.abs(rotation.T @ rotation - np.eye(3)).max() > ORTHONORMAL_TOLERANCE:
+            raise ValueError('%s must be orthonormal to %g (build it from a normalised '
+                             'quaternion)' % (name, ORTHONORMAL_TOLERANCE))
+    for name, half_extents in (('half_extents_a', half_extents_a),
+                               ('half_extents_b', half_extents_b)):
+        if (half_extents < 0.0).any():
+            raise ValueError('%s must be >= 0' % name)
     status, depth, normal, point, _ = collide_pairs(
         np.array([center_a, center_b]), np.array([rotation_a, rotation_b]),
         np.array([half_extents_a, half_extents_b]), np.zeros(2), np.array([[0, 1]]),
         margin=math.inf)
     if status[0] == INVALID:
-        raise ValueError('the boxes are too far apart for float64')
+        raise ValueError('the centres are too far apart for float64 (%s)'
+                         % (center_b - center_a))
     distance = -depth[0]
     gap = 0.5 * max(distance, 0.0) * normal[0]
     return distance, point[0] - gap, point[0] + gap
+
+
+def _checked(value, shape, name):
+    array = np.asarray(value, dtype=np.float64)
+    if array.shape != shape:
+        raise ValueError('%s must have shape %s, got %s' % (name, shape, array.shape))
+    if not np.isfinite(array).all():
+        raise ValueError('%s has a NaN or Inf value' % name)
+    return array
 
 
 def empty_output(capacity):
