@@ -15,7 +15,7 @@ setup(
     ],
     install_requires=['setuptools', 'numpy', 'numba'],
     extras_require={
-        'test': ['pytest', 'hypothesis', 'python-fcl'],
+        'test': ['pytest', 'hypothesis', 'python-fcl', 'coal'],
         'bench': ['python-fcl', 'matplotlib'],
     },
     zip_safe=False,
