@@ -68,8 +68,8 @@ from exact_distance import exact_distance
 import fcl
 import numpy as np
 import pytest
-from test_sat_stress import (axis_angle, Case, crossing_edges_offset, matrix, multiply,
-                             place_on_ray, random_quaternion, random_unit, signs,
+from test_sat_stress import (axis_angle, Case, crossing_edges_offset, draw_cases, matrix,
+                             multiply, place_on_ray, random_quaternion, random_unit, signs,
                              support_offset, touching_vertex_face, touching_vertices)
 
 from collision_node.pipeline import distance, sat
@@ -248,20 +248,10 @@ CLASSES = {
 @functools.lru_cache(maxsize=None)
 def generate(name, count, seed):
     """Return ``count`` separated pairs of class ``name`` with their exact distances."""
-    rng = np.random.default_rng([seed, list(CLASSES).index(name)])
-    cases = []
-    while len(cases) < count:
-        size = rng.choice(SIZES)
-        made = CLASSES[name](rng, size, rng.choice(GAPS) * size)
-        if made[-1] is None:
-            continue
-        qa, ea, qb, eb, t = made
-        center_a = rng.choice(OFFSETS) * random_unit(rng)
-        case = Case(np.r_[center_a, qa], ea, np.r_[center_a + t, qb], eb)
+    def separated(case):
         exact = exact_distance(*case)
-        if not exact.colliding:
-            cases.append((case, exact))
-    return tuple(cases)
+        return None if exact.colliding else (case, exact)
+    return tuple(draw_cases(CLASSES, name, count, seed, separated, SIZES, GAPS, OFFSETS))
 
 
 # ---------------------------------------------------------------- running and checking

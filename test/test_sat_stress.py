@@ -291,22 +291,33 @@ CLASSES = {
 }
 
 
-def generate(name, count, seed):
-    """``count`` cases of class ``name``, each at a random size, gap and offset."""
-    rng = np.random.default_rng([seed, list(CLASSES).index(name)])
-    cases = []
-    while len(cases) < count:
-        size = rng.choice(SIZES)
-        made = CLASSES[name](rng, size, rng.choice(GAPS) * size)
+def draw_cases(classes, name, count, seed, judge, sizes=SIZES, gaps=GAPS, offsets=OFFSETS):
+    """Return ``count`` items ``judge(case)`` of class ``name`` (None: draw again).
+
+    Each case is at a random size, gap (× size) and offset from the origin drawn from
+    ``sizes``, ``gaps`` and ``offsets``; test_distance.py draws its classes the same way.
+    """
+    rng = np.random.default_rng([seed, list(classes).index(name)])
+    items = []
+    while len(items) < count:
+        size = rng.choice(sizes)
+        made = classes[name](rng, size, rng.choice(gaps) * size)
         if made[-1] is None:
             continue
         qa, ea, qb, eb, t = made
-        center_a = rng.choice(OFFSETS) * random_unit(rng)
-        case = Case(np.r_[center_a, qa], ea, np.r_[center_a + t, qb], eb)
-        if name == 'crossing_edges' and exact_sat(*case).best.kind != 'edge':
-            continue
-        cases.append(case)
-    return cases
+        center_a = rng.choice(offsets) * random_unit(rng)
+        item = judge(Case(np.r_[center_a, qa], ea, np.r_[center_a + t, qb], eb))
+        if item is not None:
+            items.append(item)
+    return items
+
+
+def generate(name, count, seed):
+    """``count`` cases of class ``name``, each at a random size, gap and offset."""
+    def judge(case):
+        edges_wanted = name == 'crossing_edges'
+        return None if edges_wanted and exact_sat(*case).best.kind != 'edge' else case
+    return draw_cases(CLASSES, name, count, seed, judge)
 
 
 # ---------------------------------------------------------------- running and checking

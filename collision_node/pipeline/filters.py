@@ -103,8 +103,8 @@ class PairFilter:
 
     def check_count(self, count):
         """Raise ValueError when per-body categories or masks do not fit ``count`` bodies."""
-        for name, values in (('dynamic collision_category', self.categories),
-                             ('dynamic collision_mask', self.masks)):
+        for name, values in (('collision_category', self.categories),
+                             ('collision_mask', self.masks)):
             if len(values) not in (1, count):
                 raise ValueError('%s has %d values, the input %d bodies'
                                  % (name, len(values), count))

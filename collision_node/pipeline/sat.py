@@ -157,8 +157,8 @@ def signed_distance(center_a, rotation_a, half_extents_a, center_b, rotation_b,
         np.array([half_extents_a, half_extents_b]), np.zeros(2), np.array([[0, 1]]),
         margin=math.inf)
     if status[0] == INVALID:
-        raise ValueError('the centres are too far apart for float64 (%s)'
-                         % (center_b - center_a))
+        raise ValueError('the centres %s and %s are too far apart for float64'
+                         % (center_a, center_b))
     distance = -depth[0]
     gap = 0.5 * max(distance, 0.0) * normal[0]
     return distance, point[0] - gap, point[0] + gap

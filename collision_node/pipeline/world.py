@@ -76,6 +76,7 @@ class World:
         self._static_categories = np.zeros(0, np.int64)
         self._static_masks = np.zeros(0, np.int64)
         self._static_ignorable = np.zeros(0, np.bool_)
+        self._static_margins = False  # whether any static box has a margin of its own
         self._filter = PairFilter()
         self._filtering = False  # whether any setting can filter a pair
         self._margin = _checked_margin('margin', margin)
@@ -162,11 +163,12 @@ class World:
         except ValueError as error:
             raise ValueError('static %s' % error) from None
         boxes.margins[:count] = margins[order]
-        if self._margin > 0.0 or np.any(margins > 0.0):
+        if self._margin > 0.0 or np.any(margins > 0.0):  # padding with 0 changes no bit
             pad_bounds(boxes.aabbs, boxes.radii, boxes.margins, 0, count, self._margin / 2)
         self._static = _StaticInput(poses.copy(), np.array(half_extents, np.float64), ids,
                                     margins, categories, masks)
         self._boxes = boxes
+        self._static_margins = bool(np.any(margins > 0.0))
         self._n_static = count
         self._static_ids = ids[order]
         self._static_categories = categories[order]
@@ -338,7 +340,7 @@ class World:
         if len(self._sat_output[0]) < len(pairs):
             self._sat_output = empty_output(int(SAT_OUTPUT_GROWTH * len(pairs)))
         boxes = self._boxes
-        margins = boxes.margins if self._margin > 0.0 or np.any(self._static.margins) else None
+        margins = boxes.margins if self._margin > 0.0 or self._static_margins else None
 
         def chunk(_, start, stop):
             return collide_pairs(boxes.centers, boxes.rotations, boxes.half_extents,

@@ -231,11 +231,6 @@ class CollisionNode(Node):
         if extents.ndim == 2 and len(extents) != count:
             raise InputError('dynamic.half_extents sizes %d bodies, the input has %d poses'
                              % (len(extents), count))
-        for name in ('dynamic.collision_category', 'dynamic.collision_mask'):
-            values = getattr(config, name.replace('.', '_'))
-            if len(values) not in (1, count):
-                raise InputError('%s has %d values, the input has %d poses'
-                                 % (name, len(values), count))
 
     def _reject(self, reason):
         self._monitor.rejected(reason)
