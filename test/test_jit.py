@@ -76,6 +76,12 @@ for node in nodes:
         bad[7, 2] = np.nan
         node._check(serialize_pose_array(1, 0, '', bad))
     node._check(serialize_pose_array(1, 0, '', np.zeros((0, 7))))
+# auto past GRID_BODIES: it measures the boxes' spread to choose between its phases.
+assert nodes[0].set_parameters([Parameter('broad_phase', value='auto'),
+                                 Parameter('dynamic.collision_category', value=[1])])[0].successful
+crowd = scenes.room(1500, seed=5)
+for t in (0.0, 0.5):
+    nodes[0]._check(serialize_pose_array(1, 0, '', crowd.dynamic_poses(t)))
 after = compiled()
 assert len(before) > 5, before
 changed = {key: (before.get(key), count) for key, count in after.items()

@@ -26,6 +26,7 @@ import numpy as np
 
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase import make_broad_phase, NAMES, Settings
+from collision_node.pipeline.broadphase.auto import GRID_BODIES
 from collision_node.pipeline.contacts import (  # noqa: F401 (DYNAMIC re-exported)
     assemble_contacts, CONTACT_DTYPE, DYNAMIC, merge_contacts, orient_pairs, STATIC)
 from collision_node.pipeline.filters import (ALL_CATEGORIES, collision_bits, DEFAULT_CATEGORY,
@@ -477,6 +478,7 @@ def _inverse(permutation):
 
 
 WARM_UP_BODIES = 64  # half static: enough for every broad phase to run its full code path
+AUTO_SPREAD_BODIES = 2 * GRID_BODIES  # auto's choice past sweep and prune
 
 
 def warm_up():
@@ -502,6 +504,11 @@ def warm_up():
                 world.step(_half_moved(scene, 1.0), scene.dynamic_half_extents[0])
                 world.step(scene.dynamic_poses(1.5)[:1], scene.dynamic_half_extents[0])
                 world.step(np.zeros((0, 7)), scene.dynamic_half_extents[0])
+    # auto measures the boxes' spread only from AUTO_SPREAD_BODIES bodies on.
+    large = uniform(AUTO_SPREAD_BODIES, seed=1)
+    world = World(broad_phase='auto')
+    world.set_static(large.static_poses, large.static_half_extents)
+    world.step(large.dynamic_poses(0.0), large.dynamic_half_extents)
     # Margins (padded bounds, exact distances) and filters (masks per body, ignored pairs).
     world = World(broad_phase='brute_force', margin=0.1)
     world.set_static(scene.static_poses, scene.static_half_extents, margins=0.05, masks=3)
