@@ -73,7 +73,7 @@ def _distances(rel, t, ea, eb, out):
         a = (ea[k, 0], ea[k, 1], ea[k, 2])
         b = (eb[k, 0], eb[k, 1], eb[k, 2])
         tie = TIE_ULPS * EPS * (a[0] + a[1] + a[2] + b[0] + b[1] + b[2])
-        if sat._separating_axis_test(r, tk, a, b, tie)[0] == sat.COLLIDING:
+        if sat._separating_axis_test(r, tk, a, b, tie, None)[0] == sat.COLLIDING:
             out[k] = 0.0
         else:
             out[k] = box_distance(r, tk, a, b)[0]
@@ -101,7 +101,7 @@ def _time_sat(rel, t, ea, eb):
              rel[k, 7], rel[k, 8])
         total += sat._separating_axis_test(r, (t[k, 0], t[k, 1], t[k, 2]),
                                            (ea[k, 0], ea[k, 1], ea[k, 2]),
-                                           (eb[k, 0], eb[k, 1], eb[k, 2]), 1e-14)[1]
+                                           (eb[k, 0], eb[k, 1], eb[k, 2]), 1e-14, None)[1]
     return total
 
 

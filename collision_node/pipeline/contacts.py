@@ -49,6 +49,23 @@ def assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, 
     return contacts
 
 
+@kernel
+def closest_contact(distance):
+    """Return (near pairs, smallest distance, its row) of contacts' ``distance``; row -1 if none.
+
+    One pass over the field (a strided view, which numba takes without the slow typing of a
+    structured array): numpy's count and argmin cost ~1 % of a 1,000-body tick.
+    """
+    near = 0
+    closest = -1
+    smallest = np.inf
+    for row in range(len(distance)):
+        near += distance[row] > 0.0
+        if closest < 0 or distance[row] < smallest:
+            closest, smallest = row, distance[row]
+    return near, smallest, closest
+
+
 def merge_contacts(first, second):
     """Return the rows of two sorted CONTACT_DTYPE arrays (no pair in both), sorted."""
     out = np.empty(len(first) + len(second), CONTACT_DTYPE)

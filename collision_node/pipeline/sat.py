@@ -113,12 +113,16 @@ def collide_pairs(centers, rotations, half_extents, radii, pairs, sphere_prefilt
     if out is None or len(out[0]) < n:
         out = empty_output(n)
     status, depth, normal, point = (array[:n] for array in out)
-    with_margins = box_margins is not None
-    if not with_margins:
-        box_margins = _NO_MARGINS
+    # No margin at all compiles a kernel without the margin's bookkeeping (None prunes its
+    # branches): the plain SAT pays nothing for margins (measured +20 % at 10,000 bodies).
+    if box_margins is None:
+        margin = None if margin == 0.0 else float(margin)
+    else:
+        margin = float(margin)
+        box_margins = np.ascontiguousarray(box_margins, dtype=np.float64)
     sat_tests = _collide_pairs(centers, rotations, half_extents, radii, pairs,
-                               bool(sphere_prefilter), float(margin), box_margins, with_margins,
-                               status, depth, normal, point)
+                               bool(sphere_prefilter), margin, box_margins, status, depth,
+                               normal, point)
     return status, depth, normal, point, sat_tests
 
 
@@ -186,12 +190,13 @@ def empty_output(capacity):
 # Notation and speed notes: frames.py. R = AᵀB as a row-major 9-tuple (``rel``), t = B's
 # centre in A's frame; ea, eb the half extents.
 
-_NO_MARGINS = np.zeros(1)
-
-
 @kernel
 def _collide_pairs(centers, rotations, extents, radii, pairs, sphere_prefilter, margin,
-                   box_margins, with_margins, status, depth, normal, point):
+                   box_margins, status, depth, normal, point):
+    """Run collide_pairs' loop; ``margin`` None (no margin at all) or a float.
+
+    ``box_margins`` is None or one margin per box.
+    """
     sat_tests = 0
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
@@ -218,11 +223,17 @@ def _collide_pairs(centers, rotations, extents, radii, pairs, sphere_prefilter, 
             status[k] = INVALID
             continue
         tie = TIE_ULPS * EPS * scale
-        pair_margin = margin + box_margins[a] + box_margins[b] if with_margins else margin
-        status[k], depth[k], axis_id = _separating_axis_test(rel, t, ea, eb, tie, pair_margin)
+        if margin is None:
+            status[k], depth[k], axis_id = _separating_axis_test(rel, t, ea, eb, tie, None)
+            pair_margin = 0.0
+        else:
+            pair_margin = margin if box_margins is None else \
+                margin + box_margins[a] + box_margins[b]
+            status[k], depth[k], axis_id = _separating_axis_test(rel, t, ea, eb, tie,
+                                                                 pair_margin)
         if status[k] == COLLIDING:
             axis, local_point = _contact(rel, t, ea, eb, tie, axis_id)
-        elif status[k] == NEAR:
+        elif margin is not None and status[k] == NEAR:
             distance, on_a, on_b = box_distance(rel, t, ea, eb)
             if not distance <= pair_margin:
                 status[k] = SEPARATED
@@ -250,7 +261,8 @@ def _separating_axis_test(rel, t, ea, eb, tie, margin):
     Separated: the (negative) overlap on the first axis found that separates the boxes by
     more than ``margin``. Near: no axis separates them by more than ``margin`` but some does
     (the widest gap, negated, and its axis; the exact distance is at least that gap).
-    Colliding: the least overlap and its axis. With ``margin`` 0 nothing is near.
+    Colliding: the least overlap and its axis. With ``margin`` 0 nothing is near; with
+    ``margin`` None the margin's bookkeeping is not even compiled.
     """
     faces = (face_a_overlap(rel, t, ea, eb, 0), face_a_overlap(rel, t, ea, eb, 1),
              face_a_overlap(rel, t, ea, eb, 2), face_b_overlap(rel, t, ea, eb, 0),
@@ -262,7 +274,7 @@ def _separating_axis_test(rel, t, ea, eb, tie, margin):
     gap_id = 0
     for overlap in faces:
         if overlap < 0.0:
-            if overlap < -margin:
+            if margin is None or overlap < -margin:
                 return SEPARATED, overlap, axis_id
             if -overlap > widest_gap:
                 widest_gap, gap_id = -overlap, axis_id
@@ -281,7 +293,7 @@ def _separating_axis_test(rel, t, ea, eb, tie, margin):
         # overlap / length < limit is compared squared (both sides >= 0) without a root.
         if overlap < 0.0:
             gap = -overlap / math.sqrt(length_sq)
-            if gap > margin:
+            if margin is None or gap > margin:
                 return SEPARATED, -gap, axis_id
             if gap > widest_gap:
                 widest_gap, gap_id = gap, axis_id

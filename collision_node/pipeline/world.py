@@ -28,7 +28,8 @@ from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase import make_broad_phase, NAMES, Settings
 from collision_node.pipeline.broadphase.auto import GRID_BODIES
 from collision_node.pipeline.contacts import (  # noqa: F401 (DYNAMIC re-exported)
-    assemble_contacts, CONTACT_DTYPE, DYNAMIC, merge_contacts, orient_pairs, STATIC)
+    assemble_contacts, closest_contact, CONTACT_DTYPE, DYNAMIC, merge_contacts, orient_pairs,
+    STATIC)
 from collision_node.pipeline.filters import (ALL_CATEGORIES, collision_bits, DEFAULT_CATEGORY,
                                              filters_nothing, PairFilter)
 from collision_node.pipeline.obb import Boxes, MAX_COORDINATE, pad_bounds, set_boxes
@@ -386,16 +387,15 @@ def _per_box(name, values, count):
 
 def _distance_stats(contacts):
     """Return colliding_pairs, near_pairs, min_distance and min_distance_pair of contacts."""
-    distance = contacts['distance']
-    near = int(np.count_nonzero(distance > 0.0))
-    if not len(contacts):
+    near, smallest, closest = closest_contact(contacts['distance'])
+    if closest < 0:
         return {'colliding_pairs': 0, 'near_pairs': 0, 'min_distance': math.nan,
                 'min_distance_pair': None}
-    closest = contacts[int(np.argmin(distance))]
+    row = contacts[closest]
     return {'colliding_pairs': len(contacts) - near, 'near_pairs': near,
-            'min_distance': float(closest['distance']),
-            'min_distance_pair': tuple(int(closest[key])
-                                       for key in ('id_a', 'type_a', 'id_b', 'type_b'))}
+            'min_distance': smallest,
+            'min_distance_pair': (int(row['id_a']), int(row['type_a']), int(row['id_b']),
+                                  int(row['type_b']))}
 
 
 @kernel

@@ -1,0 +1,32 @@
+"""against_commit: the base is the commit's package, the child times this tree, ratios."""
+import pathlib
+
+from collision_node.benchmarks import against_commit
+
+
+def test_export_writes_the_commits_package(tmp_path):
+    against_commit.export('HEAD', str(tmp_path))
+    world = tmp_path / 'collision_node' / 'pipeline' / 'world.py'
+    assert world.is_file()
+    assert 'class World' in world.read_text()
+
+
+def test_child_times_each_size_in_the_given_tree():
+    medians = against_commit.run_child(str(against_commit.REPO), [(20, 3), (40, 3)])
+    assert set(medians) == {'20', '40'}
+    assert all(0.0 < ms < 1e4 for ms in medians.values())
+
+
+def test_summary_is_this_over_base_per_round():
+    rounds = [{'base': {'10': 2.0}, 'this': {'10': 1.0}},
+              {'this': {'10': 3.0}, 'base': {'10': 2.0}}]
+    assert against_commit.summary(rounds, [10]) == {10: [0.5, 1.5]}
+
+
+def test_ticks_fill_the_budget_but_never_fewer_than_twenty():
+    assert against_commit.ticks_for(1000, 600.0) == 1200
+    assert against_commit.ticks_for(10 ** 6, 600.0) == 20
+
+
+def test_repo_is_the_checkout_holding_the_package():
+    assert (pathlib.Path(against_commit.REPO) / 'collision_node' / '__init__.py').is_file()
