@@ -112,6 +112,32 @@ def test_a_near_pair_has_its_closest_points_and_the_normal_between_them():
         assert np.all(np.abs(local) <= half + 1e-12)  # on (the surface of) its box
 
 
+def test_the_normal_of_a_near_pair_is_unit_and_separating_at_tiny_gaps():
+    # Closest points 1e-15..1e-11 apart are mostly rounding noise: their offset divided by the
+    # distance once gave a "unit" normal 11 long. Whatever the gap (1e-15..1e-4 here), the
+    # normal must be unit and separate the boxes: B's extent along it starts no earlier than
+    # A's ends (to rounding).
+    rng = np.random.default_rng(11)
+    world = World('brute_force', margin=10.0)
+    for _ in range(1000):
+        poses = np.zeros((2, 7))
+        poses[:, 3:] = random_quaternions(rng, 2)
+        extents = rng.uniform(0.1, 1.0, (2, 3))
+        direction = rng.normal(size=3)
+        poses[1, :3] = 5.0 * direction / np.linalg.norm(direction)
+        far = world.step(poses, extents).contacts[0]
+        towards = -np.array([far['normal_x'], far['normal_y'], far['normal_z']])
+        gap = 10.0 ** rng.uniform(-15, -4)
+        poses[1, :3] += towards * (far['distance'] - gap)
+        contact, = world.step(poses, extents).contacts
+        normal = np.array([contact['normal_x'], contact['normal_y'], contact['normal_z']])
+        assert np.linalg.norm(normal) == pytest.approx(1.0, abs=1e-12)
+        reach = [np.abs(rotation(p[3:]).T @ normal) @ e for p, e in zip(poses, extents)]
+        gap_along_normal = normal @ (poses[1, :3] - poses[0, :3]) - reach[0] - reach[1]
+        assert gap_along_normal >= -1e-12
+        assert contact['distance'] == pytest.approx(gap, abs=1e-11)
+
+
 @pytest.mark.parametrize('gap', [0.3, 1e-3, 1e-9, 1e-12, 0.0, -1e-12, -1e-9, -1e-3, -0.3])
 def test_distance_is_continuous_through_touching(gap):
     # Face to face along x, then a corner to a face: the distance is the gap either side of 0.

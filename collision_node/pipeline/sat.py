@@ -70,6 +70,11 @@ COLLIDING = 1
 INVALID = 2  # a NaN or Inf reached the test: it claims neither verdict
 NEAR = 3     # apart, but within the pair's margin (exact distance)
 
+# A NEAR pair's normal is the direction between its closest points when they are at least
+# this × the pair's scale apart (√(TIE_ULPS·EPS) ≈ 1.2e-7: rounding δ of the points tilts the
+# direction by δ/d, which costs a face of width w a gap of w·δ/d; separating needs d² ≥ δ·w),
+# else the SAT's widest-gap axis (_near_normal).
+NORMAL_FROM_POINTS = math.sqrt(TIE_ULPS * EPS)
 # A box axis this close to perpendicular to the normal counts as lying flat on it when the
 # contact feature is picked, so a face lying on a face yields the middle of that face.
 FEATURE_TOLERANCE = 1e-9
@@ -239,9 +244,7 @@ def _collide_pairs(centers, rotations, extents, radii, pairs, sphere_prefilter, 
                 status[k] = SEPARATED
                 continue
             depth[k] = -distance
-            axis = _unit_axis(rel, t, axis_id) if distance == 0.0 else (
-                (on_b[0] - on_a[0]) / distance, (on_b[1] - on_a[1]) / distance,
-                (on_b[2] - on_a[2]) / distance)
+            axis = _near_normal(rel, t, scale, axis_id, on_a, on_b)
             local_point = (0.5 * (on_a[0] + on_b[0]), 0.5 * (on_a[1] + on_b[1]),
                            0.5 * (on_a[2] + on_b[2]))
         else:
@@ -252,6 +255,24 @@ def _collide_pairs(centers, rotations, extents, radii, pairs, sphere_prefilter, 
             normal[k, m] = world_normal[m]
             point[k, m] = centers[a, m] + world_offset[m]
     return sat_tests
+
+
+@kernel
+def _near_normal(rel, t, scale, axis_id, on_a, on_b):
+    """Return the unit normal of a NEAR pair, from A's closest point ``on_a`` to B's ``on_b``.
+
+    The closest points carry rounding of a few ulps of ``scale``; their offset's direction is
+    off by that over its length, which tilts a normal across a face of width w by enough to
+    cost w times the tilt of the gap along it. Below NORMAL_FROM_POINTS × scale that tilt
+    could make the normal fail to separate the boxes (seen: a "unit" normal 11 long at a
+    1e-14 gap), so there the SAT's widest-gap axis, which separates them exactly, is the
+    normal. Above it the offset is normalised by its own length: unit to rounding.
+    """
+    offset = (on_b[0] - on_a[0], on_b[1] - on_a[1], on_b[2] - on_a[2])
+    length = math.sqrt(dot(offset, offset))
+    if not length > NORMAL_FROM_POINTS * scale:
+        return _unit_axis(rel, t, axis_id)
+    return offset[0] / length, offset[1] / length, offset[2] / length
 
 
 @kernel
