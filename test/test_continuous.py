@@ -379,3 +379,48 @@ def test_tolerance_is_validated():
         world.continuous_tolerance = math.nan
     world.continuous_tolerance = 1e-3
     assert world.continuous_tolerance == 1e-3 and not world.continuous
+
+
+def fcl_continuous(motion, solver, motion_type):
+    """Return python-fcl's (is_collide, time_of_contact) for each body pair of ``motion``."""
+    fcl = pytest.importorskip('fcl')
+
+    def transform(pose):
+        return fcl.Transform(np.array([pose[6], pose[3], pose[4], pose[5]]), np.array(pose[:3]))
+
+    found = []
+    for a, kind, b, _ in motion.pairs():
+        start_b, end_b, extents_b = (
+            (motion.static_poses[b], motion.static_poses[b], motion.static_extents[b])
+            if kind == STATIC else (motion.start[b], motion.end[b], motion.extents[b]))
+        body_a = fcl.CollisionObject(fcl.Box(*(2 * motion.extents[a])), transform(motion.start[a]))
+        body_b = fcl.CollisionObject(fcl.Box(*(2 * extents_b)), transform(start_b))
+        request = fcl.ContinuousCollisionRequest(ccd_solver_type=solver,
+                                                 ccd_motion_type=motion_type)
+        result = fcl.ContinuousCollisionResult()
+        fcl.continuousCollide(body_a, transform(motion.end[a]), body_b, transform(end_b),
+                              request, result)
+        found.append((result.is_collide, result.time_of_contact))
+    return found
+
+
+def test_python_fcl_continuous_collide_differs_as_the_readme_says():
+    """Check python-fcl's default and naive modes: translations found, rotation missed.
+
+    Its linear and screw motions are left out: their answers on these motions changed with
+    the calls made before in the same process (README).
+    """
+    fcl = pytest.importorskip('fcl')
+    advancement = fcl.CCDSolverType.CCDC_CONSERVATIVE_ADVANCEMENT
+    naive = fcl.CCDSolverType.CCDC_NAIVE
+    translation = fcl.CCDMotionType.CCDM_TRANS
+    for name in ('bullet', 'crossing'):
+        ours = NAMED[name]().run().contacts['toi'][0]
+        (hit, toi), = fcl_continuous(NAMED[name](), advancement, translation)
+        assert hit and ours <= toi <= ours + CONTINUOUS_TOLERANCE / 0.1  # 0.1 m of travel
+        (hit, toi), = fcl_continuous(NAMED[name](), naive, translation)
+        assert hit and abs(toi - 1.0 / 3.0) < 1e-4  # its pose 3 of 10
+    plank = spinning_plank()
+    assert len(plank.run().contacts) == 1
+    for solver in (advancement, naive):
+        assert fcl_continuous(plank, solver, translation) == [(False, 1.0)]
