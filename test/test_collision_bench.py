@@ -88,6 +88,18 @@ def test_margins_section_reports_more_pairs_for_larger_margins(tiny_run):
     assert plain['vs_margin_0'] == 1.0
 
 
+def test_continuous_section_times_off_and_on(tiny_run):
+    _, _, results = tiny_run
+    rows = results['continuous']
+    assert [(row['rate_hz'], row['continuous']) for row in rows] == [
+        (60.0, False), (60.0, True), (15.0, False), (15.0, True)]
+    for off, on in (rows[:2], rows[2:]):
+        assert off['vs_off'] == 1.0 and on['vs_off'] > 0.0
+        assert off['swept_pairs'] == off['advance_steps'] == 0 < on['advance_steps']
+        assert on['reported_pairs'] >= off['reported_pairs'] and on['unresolved_pairs'] == 0
+    assert rows[3]['swept_pairs'] > 0  # 4x the motion: pairs that touch only in between
+
+
 def test_every_broad_phase_runs_in_every_mode(tiny_run):
     _, _, results = tiny_run
     scenes = {(row['scene'], row['bodies']) for row in results['accuracy']}

@@ -14,14 +14,29 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 WORLD_STATS = {'broad_phase': 'sphere', 'dynamic_bodies': 5, 'static_bodies': 2,
                'still_bodies': 1, 'compared': 17, 'candidate_pairs': 4, 'sat_tests': 3,
                'colliding_pairs': 2, 'reused': False, 'filtered_pairs': 6, 'near_pairs': 1,
-               'min_distance': -0.0125, 'min_distance_pair': (3, 0, 1, 1)}
+               'min_distance': -0.0125, 'min_distance_pair': (3, 0, 1, 1), 'continuous': 'on',
+               'swept_pairs': 1, 'unresolved_pairs': 0}
 REQUIRED_KEYS = ['broad_phase', 'dynamic_bodies', 'static_bodies', 'still_bodies',
                  'candidate_pairs', 'sat_tests', 'colliding_pairs', 'compared', 'ticks', 'rate_hz',
                  'dropped_inputs', 'rejected_inputs', 'last_rejection', 'filtered_pairs',
-                 'near_pairs', 'min_distance', 'min_distance_pair'] + [
+                 'near_pairs', 'min_distance', 'min_distance_pair', 'continuous', 'swept_pairs',
+                 'unresolved_pairs', 'continuous_discrete_ticks'] + [
     '%s_ms_%s' % (stage, statistic)
     for stage in ('parse', 'broad', 'narrow', 'output', 'publish', 'total')
     for statistic in ('last', 'median', 'p99', 'max')]
+
+
+def test_continuous_fallbacks_are_counted_and_said():
+    monitor = Monitor(0.0)
+    reason = 'discrete (pose count changed from 5 to 6)'
+    for mode in ('on', reason, 'on', 'discrete (no previous input)', 'off'):
+        monitor.tick(0.5, [1.0] * 6, dict(WORLD_STATS, continuous=mode))
+        if mode == reason:
+            values = dict(monitor.report(0.6, input_timeout_s=5.0)[2])
+            assert values['continuous'] == reason
+    values = dict(monitor.report(1.0, input_timeout_s=5.0)[2])
+    assert values['continuous'] == 'off' and values['continuous_discrete_ticks'] == '2'
+    assert (values['swept_pairs'], values['unresolved_pairs']) == ('1', '0')
 
 
 def nearest_rank(values, fraction):

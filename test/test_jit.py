@@ -68,7 +68,8 @@ for node in nodes:
     for change in ([Parameter('margin', value=0.05)], [Parameter('c1.margin', value=0.1)],
                    [Parameter('c2.collision_mask', value=6)],
                    [Parameter('dynamic.collision_category', value=[1, 2] * 150)],
-                   [Parameter('ignored_pairs', value=['d0 d1', 'd3 c1'])]):
+                   [Parameter('ignored_pairs', value=['d0 d1', 'd3 c1'])],
+                   [Parameter('continuous', value=True)]):
         assert node.set_parameters(change)[0].successful
         for t in (0.0, 0.5, 0.5):
             node._check(serialize_pose_array(1, 0, '', room.dynamic_poses(t)))

@@ -12,11 +12,11 @@ from collision_node.ros.messages import (CLOUD_DTYPE, cloud_to_contacts, CloudWr
                                          contacts_to_cloud, contacts_to_points,
                                          serialize_collisions)
 
-FLOAT_NAMES = ['x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth', 'distance']
+FLOAT_NAMES = ['x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth', 'distance', 'toi']
 ID_NAMES = ['id_a', 'type_a', 'id_b', 'type_b']
-# The point as DESIGN §3 specifies it: the fields added later (distance) come last.
-POINT_NAMES = FLOAT_NAMES[:7] + ID_NAMES + ['distance']
-POINT_STEP = 48
+# The point as DESIGN §3 specifies it: the fields added later (distance, toi) come last.
+POINT_NAMES = FLOAT_NAMES[:7] + ID_NAMES + ['distance', 'toi']
+POINT_STEP = 52
 # (name, offset, datatype, count) of each field.
 EXPECTED_FIELDS = [(name, 4 * i, PointField.FLOAT32 if name in FLOAT_NAMES else PointField.UINT32,
                     1) for i, name in enumerate(POINT_NAMES)]
@@ -35,7 +35,7 @@ def naive_cloud_data(contacts):
     """Pack the points one at a time with struct."""
     def value(contact, name):
         return float(contact[name]) if name in FLOAT_NAMES else int(contact[name])
-    return b''.join(struct.pack('<7f4If', *(value(c, name) for name in POINT_NAMES))
+    return b''.join(struct.pack('<7f4I2f', *(value(c, name) for name in POINT_NAMES))
                     for c in contacts)
 
 
@@ -158,7 +158,8 @@ XYZ_FIELDS = [('x', 0, PointField.FLOAT32, 1), ('y', 4, PointField.FLOAT32, 1),
     (with_fields([EXPECTED_FIELDS[1], EXPECTED_FIELDS[0]] + EXPECTED_FIELDS[2:]), 'fields'),
     (with_fields(EXPECTED_FIELDS[:6] + [('depth', 24, PointField.FLOAT64, 1)]
                  + EXPECTED_FIELDS[7:]), 'fields'),
-    (with_fields(EXPECTED_FIELDS[:-1] + [('distance', 44, PointField.FLOAT32, 2)]), 'fields'),
+    (with_fields(EXPECTED_FIELDS[:-2] + [('distance', 44, PointField.FLOAT32, 2)]
+                 + EXPECTED_FIELDS[-1:]), 'fields'),
     (with_changes(is_bigendian=True), 'big-endian'),
     (with_changes(point_step=POINT_STEP + 4, row_step=4 * (POINT_STEP + 4)), 'point_step'),
     (with_changes(row_step=POINT_STEP * 3), 'row_step'),

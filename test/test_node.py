@@ -32,7 +32,7 @@ def test_contacts_stamp_frame_and_diagnostics(harness):
     check_room_contacts(cloud, EXPECTED, poses)
     assert [f.name for f in cloud.fields] == ['x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z',
                                               'depth', 'id_a', 'type_a', 'id_b', 'type_b',
-                                              'distance']
+                                              'distance', 'toi']
 
     status = room.status(lambda s: values(s)['ticks'] != '0')
     assert status.level == DiagnosticStatus.OK, status.message
@@ -162,6 +162,32 @@ def test_run_time_parameters(harness):
     room.publish(poses, sec=3)
     check_room_contacts(room.answer(3), EXPECTED, poses)
     assert values(room.status(lambda s: values(s)['ticks'] != '0'))['broad_phase'] == 'sphere'
+
+
+def test_continuous_sees_a_body_pass_through_the_wall(harness):
+    room = harness(continuous=True)
+    before = room_poses()
+    before[3, :3] = (1.5, 0.0, 1.5)  # body 3 in front of the wall (x in [1.9, 2.1]) ...
+    after = before.copy()
+    after[3, 0] = 2.5  # ... and behind it one input later: it went through
+    room.publish(before, sec=1)
+    check_room_contacts(room.answer(1), EXPECTED, before)
+    room.publish(after, sec=2)
+    contacts = cloud_to_contacts(room.answer(2))
+    keys = [(int(c['id_a']), int(c['type_b']), int(c['id_b'])) for c in contacts]
+    assert keys == sorted([c[:3] for c in EXPECTED] + [(3, 1, 1)])
+    crossing = contacts[keys.index((3, 1, 1))]
+    # Its front face (x = 1.6) reaches the wall after 0.3 m of its 1 m.
+    assert crossing['depth'] == 0.0 and 0.3 - 1e-3 <= crossing['toi'] <= 0.3
+    others = np.delete(contacts, keys.index((3, 1, 1)))
+    assert (others['toi'] == 0.0).all()  # touching already at the previous input
+    status = values(room.status(lambda s: values(s)['swept_pairs'] == '1'))
+    assert status['continuous'] == 'on' and status['continuous_discrete_ticks'] == '1'
+    room.publish(after[:3], sec=3)
+    assert cloud_to_contacts(room.answer(3))['toi'].tolist() == [1.0, 1.0, 1.0]
+    status = values(room.status(lambda s: values(s)['dynamic_bodies'] == '3'))
+    assert status['continuous'] == 'discrete (pose count changed from 5 to 3)'
+    assert status['continuous_discrete_ticks'] == '2'
 
 
 def test_timer_mode_checks_the_newest_input(harness):

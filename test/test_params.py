@@ -68,6 +68,9 @@ BAD = {
     'negative margin': ({'margin': -0.01}, 'margin', 'distance in [0'),
     'NaN margin': ({'margin': math.nan}, 'margin', 'distance in [0'),
     'negative collider margin': ({'table.margin': -1.0}, 'table.margin', 'distance in [0'),
+    'zero continuous tolerance': ({'continuous_tolerance': 0.0}, 'continuous_tolerance',
+                                  'distance in (0'),
+    'continuous as a number': ({'continuous': 1}, 'continuous', 'bool'),
     'one-body ignored pair': ({'ignored_pairs': ['d0']}, 'ignored_pairs', 'two bodies'),
     'three-body ignored pair': ({'ignored_pairs': ['d0 d1 d2']}, 'ignored_pairs', 'two bodies'),
     'unknown collider in pair': ({'ignored_pairs': ['d0 chair']}, 'ignored_pairs',
@@ -151,6 +154,10 @@ def test_run_time_changes():
     assert params.run_time_change(parsed, 'sphere_prefilter', False).sphere_prefilter is False
     assert params.run_time_change(parsed, 'use_sim_time', True) == parsed  # not ours
     assert params.run_time_change(parsed, 'margin', 0.1).margin == 0.1
+    assert parsed.continuous is False and parsed.continuous_tolerance == 1e-4
+    assert params.run_time_change(parsed, 'continuous', True).continuous is True
+    assert params.run_time_change(parsed, 'continuous_tolerance',
+                                  1e-3).continuous_tolerance == 1e-3
     changed = params.run_time_change(parsed, 'shelf.margin', 0.2)
     assert [c.margin for c in changed.colliders] == [0.0, 0.2]
     changed = params.run_time_change(parsed, 'table.collision_mask', 6)
@@ -166,6 +173,9 @@ def test_run_time_changes():
                                ('static_colliders', ['a'], 'fixed at start'),
                                ('frame_id', 'map', 'fixed at start'),
                                ('margin', -0.1, 'distance'),
+                               ('continuous_tolerance', math.nan, 'distance'),
+                               ('continuous_tolerance', -1e-4, 'distance'),
+                               ('continuous', 'yes', 'bool'),
                                ('shelf.margin', math.inf, 'distance'),
                                ('shelf.collision_category', 'all', 'integer'),
                                ('dynamic.collision_mask', [1.5], 'integer'),

@@ -206,8 +206,8 @@ def monitor_status(level=DiagnosticStatus.WARN, message='a tick took longer than
 
 def monitor_cloud():
     contacts = np.zeros(2, CLOUD_DTYPE)
-    contacts[0] = (0.125, -0.5, 1.25, 0.0, 0.0, 1.0, 0.0125, 0, 0, 3, 0, -0.0125)
-    contacts[1] = (2.0, 1.5, 0.75, 1.0, 0.0, 0.0, 0.25, 3, 0, 1, 1, -0.25)
+    contacts[0] = (0.125, -0.5, 1.25, 0.0, 0.0, 1.0, 0.0125, 0, 0, 3, 0, -0.0125, 1.0)
+    contacts[1] = (2.0, 1.5, 0.75, 1.0, 0.0, 0.0, 0.25, 3, 0, 1, 1, -0.25, 1.0)
     header = Header(frame_id='world')
     header.stamp.sec, header.stamp.nanosec = 12, 500_000_000
     return contacts_to_cloud(contacts, header)

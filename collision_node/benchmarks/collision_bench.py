@@ -34,12 +34,15 @@ OCTREE_DEPTHS = tuple(range(1, 10))  # paper 001's Table 1
 PAPER000_OCTREE_DEPTH = 4            # paper 000's octree ran at depth 4
 DEFAULT_PHASE = 'auto'               # what the node uses unless told otherwise
 SECTIONS = ('paper001', 'octree_depths', 'paper000', 'scenes', 'accuracy', 'fcl', 'profile',
-            'threads', 'margins')
+            'threads', 'margins', 'continuous')
 THREAD_COUNTS = (1, 2)  # the World's threads: this machine's cores
 # The margins section: margins as fractions of the mean box size (its full side), and one run
 # with half the dynamic pairs masked out (categories 1 and 2 in turn, each accepting its own).
 MARGIN_FRACTIONS = (0.0, 0.02, 0.1)
 MARGIN_ROUNDS = 5  # the configurations take turns, a few ticks each, so noise hits all alike
+# The continuous section: the uniform scene's inputs at 60 Hz (its usual speed, up to ~1.4 cm
+# and 0.03 rad a tick) and at 15 Hz (4x the motion per tick).
+CONTINUOUS_RATES_HZ = (60.0, 15.0)
 
 
 class Plan(NamedTuple):
@@ -58,6 +61,7 @@ class Plan(NamedTuple):
     profile_sizes: tuple       # (scene, bodies, ticks, dt): the targets' scenes
     thread_sizes: tuple        # (bodies, ticks): uniform scene, default phase, 1 and 2 threads
     margin_sizes: tuple        # (bodies, ticks per configuration): uniform scene, margins
+    continuous_sizes: tuple    # (bodies, ticks per configuration): uniform scene, continuous
     budget_s: float            # a run stops early (marked truncated) after this wall time
     # A run expected to take longer per tick is skipped; one stops after a tick that took
     # longer. Keep it >= 1 s: then a skipped run misses every DESIGN §5 target even if its
@@ -85,6 +89,7 @@ PLANS = {
                        ('uniform', 100000, 30, DT)),
         thread_sizes=((10000, 120), (100000, 30)),
         margin_sizes=((1000, 200), (10000, 100)),
+        continuous_sizes=((1000, 200), (10000, 100)),
         budget_s=120.0, max_tick_s=5.0),
     'quick': Plan(
         flying_out_sizes=(128, 256, 512, 1024), flying_out_ticks=60, flying_out_dt=5.0 / 60,
@@ -100,6 +105,7 @@ PLANS = {
                        ('uniform', 100000, 5, DT)),
         thread_sizes=((10000, 40), (100000, 10)),
         margin_sizes=((1000, 100), (10000, 40)),
+        continuous_sizes=((1000, 100), (10000, 40)),
         budget_s=3.0, max_tick_s=1.0),
     # For the tests: every section on small scenes, in seconds.
     'tiny': Plan(
@@ -112,6 +118,7 @@ PLANS = {
         profile_sizes=(('flying_out', 128, 5, 0.5), ('uniform', 1000, 3, DT)),
         thread_sizes=((1000, 3),),
         margin_sizes=((300, 5),),
+        continuous_sizes=((300, 5),),
         budget_s=5.0, max_tick_s=1.0),
 }
 
@@ -405,15 +412,7 @@ class Bench:
                 if categories is not None:
                     world.set_filters(categories=categories, masks=categories)
                 worlds.append(world)
-            samples = [[] for _ in configurations]
-            per_round = max(1, ticks // MARGIN_ROUNDS)
-            for first in range(0, per_round * MARGIN_ROUNDS, per_round):
-                for world, times in zip(worlds, samples):
-                    for tick in range(first, first + per_round):
-                        poses = scene.dynamic_poses(tick * DT)
-                        before = time.perf_counter()
-                        result = world.step(poses, scene.dynamic_half_extents)
-                        times.append((1e3 * (time.perf_counter() - before), result.stats))
+            samples = _in_rounds(scene, ticks, [(world, DT) for world in worlds])
             for (label, options, _), times in zip(configurations, samples):
                 stats = [s for _, s in times]
                 rows.append({
@@ -434,6 +433,42 @@ class Bench:
                 world.close()
         return rows
 
+    def continuous(self):
+        """Time continuous checking off and on, at the scene's usual speed and 4x faster.
+
+        The uniform scene (half static, default phase), its inputs 1/60 s apart and 1/15 s
+        apart; off and on take turns in rounds on the same inputs.
+        """
+        rows = []
+        for bodies, ticks in self.plan.continuous_sizes:
+            scene = self.scene('uniform', bodies)
+            for rate in CONTINUOUS_RATES_HZ:
+                worlds = []
+                for continuous in (False, True):
+                    world = World(broad_phase=DEFAULT_PHASE, continuous=continuous)
+                    world.set_static(scene.static_poses, scene.static_half_extents)
+                    worlds.append(world)
+                samples = _in_rounds(scene, ticks, [(world, 1.0 / rate) for world in worlds])
+                for world, times in zip(worlds, samples):
+                    stats = [s for _, s in times[1:]]  # the first tick has no motion yet
+                    rows.append({
+                        'scene': 'uniform', 'bodies': bodies, 'rate_hz': rate,
+                        'continuous': world.continuous, 'ticks': len(stats),
+                        'median_ms': float(np.median([ms for ms, _ in times[1:]])),
+                        'reported_pairs': float(np.mean([s['colliding_pairs'] + s['near_pairs']
+                                                         for s in stats])),
+                        'swept_pairs': float(np.mean([s['swept_pairs'] for s in stats])),
+                        'candidate_pairs': float(np.mean([s['candidate_pairs'] for s in stats])),
+                        'advance_steps': float(np.mean([s['advance_steps'] for s in stats])),
+                        'unresolved_pairs': int(sum(s['unresolved_pairs'] for s in stats))})
+                    rows[-1]['vs_off'] = rows[-1]['median_ms'] / rows[-1 - world.continuous][
+                        'median_ms']
+                    self.progress('continuous n=%d %g Hz %s: %.3f ms' % (
+                        bodies, rate, 'on' if world.continuous else 'off',
+                        rows[-1]['median_ms']))
+                    world.close()
+        return rows
+
     def _quickest_phase(self, scene_name, bodies):
         """Name the phase with the lowest median tick at the largest size <= bodies."""
         rows = [row for section in ('paper001', 'scenes') for row in self.results.get(section, [])
@@ -444,6 +479,24 @@ class Bench:
         largest = max(row['bodies'] for row in rows)
         return min((row for row in rows if row['bodies'] == largest),
                    key=lambda row: row['median_ms'])['broad_phase']
+
+
+def _in_rounds(scene, ticks, worlds):
+    """Step each (world, dt) through ``ticks`` inputs of ``scene``, ``dt`` apart, in turns.
+
+    The worlds take turns in MARGIN_ROUNDS rounds of a few ticks each, so that a slow minute
+    of the machine hits them all alike. Returns per world its [(ms, stats)] in tick order.
+    """
+    samples = [[] for _ in worlds]
+    per_round = max(1, ticks // MARGIN_ROUNDS)
+    for first in range(0, per_round * MARGIN_ROUNDS, per_round):
+        for (world, dt), times in zip(worlds, samples):
+            for tick in range(first, first + per_round):
+                poses = scene.dynamic_poses(tick * dt)
+                before = time.perf_counter()
+                result = world.step(poses, scene.dynamic_half_extents)
+                times.append((1e3 * (time.perf_counter() - before), result.stats))
+    return samples
 
 
 def reproduce_command(args):

@@ -315,6 +315,20 @@ def markdown(results, plot_note):
                        ('reported', _get('reported_pairs')), ('near', _get('near_pairs')),
                        ('filtered', _get('filtered_pairs')), ('SAT tests', _get('sat_tests'))],
                       results['margins']), '']
+    if 'continuous' in results:
+        out += ['## Continuous checking (median ms per tick)', '',
+                'The uniform scene, half static, default phase, its inputs 1/60 s apart (its '
+                'usual speed) and 1/15 s apart; `continuous` off and on take turns in rounds '
+                'on the same inputs; counts are means per tick.', '',
+                table([('bodies', _get('bodies')), ('input Hz', _get('rate_hz')),
+                       ('continuous', _get('continuous')), ('ticks', _get('ticks')),
+                       ('median ms', _get('median_ms')), ('× off', _get('vs_off')),
+                       ('candidates', _get('candidate_pairs')),
+                       ('reported', _get('reported_pairs')),
+                       ('touched only in between', _get('swept_pairs')),
+                       ('advancement steps', _get('advance_steps')),
+                       ('undecided', _get('unresolved_pairs'))],
+                      results['continuous']), '']
     return '\n'.join(out)
 
 

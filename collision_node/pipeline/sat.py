@@ -562,3 +562,7 @@ def _clip(chord, slab, tie):
     if max(s0, s1) < high:
         high, high_slope = max(s0, s1), abs(y)
     return low, high, low_slope, high_slope, open_
+
+
+# The per-pair test, for continuous.py's conservative advancement.
+separating_axis_test = _separating_axis_test

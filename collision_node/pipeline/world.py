@@ -30,10 +30,13 @@ from collision_node.pipeline.broadphase.auto import GRID_BODIES
 from collision_node.pipeline.contacts import (  # noqa: F401 (DYNAMIC re-exported)
     assemble_contacts, closest_contact, CONTACT_DTYPE, DYNAMIC, merge_contacts, orient_pairs,
     STATIC)
+from collision_node.pipeline.continuous import (advance_pairs, boxes_at, CONTINUOUS_TOLERANCE,
+                                                motion, NO_CONTACT, sweep_bounds)
 from collision_node.pipeline.filters import (ALL_CATEGORIES, collision_bits, DEFAULT_CATEGORY,
                                              filters_nothing, PairFilter)
 from collision_node.pipeline.obb import Boxes, MAX_COORDINATE, pad_bounds, set_boxes
-from collision_node.pipeline.sat import collide_pairs, empty_output, INVALID
+from collision_node.pipeline.sat import (collide_pairs, COLLIDING, empty_output, INVALID,
+                                         NEAR)
 from collision_node.pipeline.scenes import uniform
 from collision_node.pipeline.workers import Workers
 
@@ -52,6 +55,10 @@ Z_ORDER_MIN_TICKS = 50
 # The SAT's output arrays grow to this many times the pairs of the tick that outgrew them, so
 # that a slowly growing count does not reallocate every tick.
 SAT_OUTPUT_GROWTH = 1.5
+# stats['continuous']: off, or swept over the motion since the previous input (else it says
+# why the step was checked at its poses only).
+OFF = 'off'
+SWEPT = 'on'
 # Least candidate pairs in a chunk when the SAT is spread over threads: ~0.15 ms of SAT
 # (~75 ns a pair) against the ~10-50 µs a helper's dispatch costs.
 MIN_PAIRS_PER_CHUNK = 2048
@@ -68,7 +75,8 @@ class World:
     """Static and dynamic oriented boxes and the broad phase that pairs them."""
 
     def __init__(self, broad_phase='auto', sphere_prefilter=True, octree_max_depth=0,
-                 octree_leaf_cooldown_ticks=15, threads=1, margin=0.0):
+                 octree_leaf_cooldown_ticks=15, threads=1, margin=0.0, continuous=False,
+                 continuous_tolerance=CONTINUOUS_TOLERANCE):
         self._boxes = Boxes(1024)
         self._n_static = 0
         self._static_ids = np.zeros(0, np.int64)
@@ -88,6 +96,10 @@ class World:
         self._sampled_at = np.zeros((0, 3))    # their positions when the rows were sorted
         self._ticks_since_sort = 0
         self._sat_output = empty_output(0)  # reused from tick to tick, grown as needed
+        self._continuous = bool(continuous)
+        self._tolerance = _checked_tolerance(continuous_tolerance)
+        self._previous = None  # the poses of the last accepted input (the motion's start)
+        self._sweep = _Sweep(Boxes(0), np.zeros((0, 3)), np.zeros((0, 4)))
         self._workers = Workers(threads)
         self._settings = Settings(octree_max_depth, octree_leaf_cooldown_ticks)
         self._phase_name = broad_phase
@@ -119,6 +131,26 @@ class World:
     @sphere_prefilter.setter
     def sphere_prefilter(self, value):
         self._sphere_prefilter = bool(value)
+        self._last = None
+
+    @property
+    def continuous(self):
+        """Whether pairs are checked over the motion since the last input (continuous.py)."""
+        return self._continuous
+
+    @continuous.setter
+    def continuous(self, value):
+        self._continuous = bool(value)
+        self._last = None
+
+    @property
+    def continuous_tolerance(self):
+        """Metres: a continuous pair's boxes are within margin + this at its ``toi``."""
+        return self._tolerance
+
+    @continuous_tolerance.setter
+    def continuous_tolerance(self, value):
+        self._tolerance = _checked_tolerance(value)
         self._last = None
 
     def configure(self, broad_phase=None, octree_max_depth=None,
@@ -214,7 +246,9 @@ class World:
         poses = np.require(poses, np.float64, ['C', 'A', 'W']).reshape(-1, 7)
         half_extents = np.asarray(half_extents, dtype=np.float64)
         self._filter.check_count(len(poses))
-        moved = self._moved_bodies(poses, half_extents)
+        # Continuous: every pair is swept over its motion, so no contact is kept from the
+        # last step (its toi belonged to that step's motion).
+        moved = None if self._continuous else self._moved_bodies(poses, half_extents)
         if moved is not None and not moved.any():
             return self._last[2]._replace(stats=dict(self._last[2].stats, reused=True))
         if moved is not None and moved.all():
@@ -228,6 +262,9 @@ class World:
         if len(self._dynamic_ids) != n_dynamic or self._rows_are_stale(poses, half_extents):
             self._sort_dynamic_rows(poses)
         set_boxes(self._boxes, n_static, poses, half_extents, self._dynamic_rows)
+        mode = self._continuous_mode(n_dynamic)
+        if mode == SWEPT:
+            self._sweep_bounds(poses, half_extents)
         if self._margin > 0.0:
             pad_bounds(self._boxes.aabbs, self._boxes.radii, self._boxes.margins, n_static,
                        n_static + n_dynamic, self._margin / 2)
@@ -238,6 +275,8 @@ class World:
                  'filtered_pairs': 0, 'sat_tests': 0, 'colliding_pairs': 0, 'near_pairs': 0,
                  'min_distance': math.nan, 'min_distance_pair': None, 'reused': False,
                  'still_bodies': 0 if moved is None else int(n_dynamic - moved.sum()),
+                 'continuous': mode, 'swept_pairs': 0, 'advance_steps': 0,
+                 'unresolved_pairs': 0,
                  'broad_phase_stats': {}}
         if n_dynamic == 0:  # nothing moves: nothing to pair
             contacts = np.zeros(0, CONTACT_DTYPE)
@@ -258,11 +297,13 @@ class World:
             if moved is not None:  # the other pairs' contacts are those of the last step
                 pairs = pairs[:_front_pairs_with_a_moved_body(pairs, n_static, self._dynamic_ids,
                                                               moved)]
-            status, depth, normal, point, sat_tests = self._collide(pairs)
-            if np.any(status == INVALID):  # bounded, finite input cannot get here; never guess
-                raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
-            contacts = assemble_contacts(pairs, status, depth, normal, point, n_static,
-                                         n_dynamic, self._static_ids, self._dynamic_ids)
+            if mode == SWEPT:
+                contacts, sat_tests = self._collide_swept(pairs, stats)
+            else:
+                status, depth, normal, point, sat_tests = self._collide(pairs)
+                _check_valid(status)
+                contacts = assemble_contacts(pairs, status, depth, normal, point, n_static,
+                                             n_dynamic, self._static_ids, self._dynamic_ids)
             if moved is not None:
                 contacts = merge_contacts(self._contacts_of_still_bodies(moved), contacts)
             narrow_done = time.perf_counter()
@@ -275,7 +316,78 @@ class World:
         contacts.flags.writeable = False
         result = Result(contacts, stats)
         self._last = (poses.copy(), half_extents.copy(), result)
+        self._previous = self._last[0]
         return result
+
+    def _continuous_mode(self, n_dynamic):
+        """Return how this step is checked: OFF, SWEPT, or why it falls back to discrete."""
+        if not self._continuous:
+            return OFF
+        if self._previous is None:
+            return 'discrete (no previous input)'
+        if len(self._previous) != n_dynamic:
+            return 'discrete (pose count changed from %d to %d)' % (len(self._previous),
+                                                                    n_dynamic)
+        return SWEPT
+
+    def _sweep_bounds(self, poses, half_extents):
+        """Set the motion since the previous input and grow the dynamic bounds to hold it."""
+        n_static, n_dynamic = self._n_static, len(poses)
+        if self._sweep.start.capacity < n_dynamic:
+            capacity = 2 * n_dynamic
+            self._sweep = _Sweep(Boxes(capacity), np.zeros((capacity, 3)),
+                                 np.zeros((capacity, 4)))
+        start, velocity, spin = self._sweep
+        set_boxes(start, 0, self._previous, half_extents, self._dynamic_rows)
+        motion(self._previous, poses, self._dynamic_rows, velocity, spin)
+        boxes = self._boxes
+        sweep_bounds(boxes.aabbs, boxes.radii, boxes.half_extents, start.aabbs, velocity, spin,
+                     n_static, n_static + n_dynamic)
+
+    def _collide_swept(self, pairs, stats):
+        """Return the contacts of ``pairs`` over the motion, and the SAT tests at t = 1.
+
+        Conservative advancement finds each pair's toi; the pairs that touch at t = 1 get the
+        contacts of the discrete SAT there, the others (touching only in between) those of
+        the boxes at their toi, with depth 0.
+        """
+        boxes, n_static = self._boxes, self._n_static
+        n_dynamic = len(self._dynamic_ids)
+        start, velocity, spin = self._sweep
+        margins = boxes.margins if self._margin > 0.0 or self._static_margins else None
+        toi = np.empty(len(pairs))
+
+        def chunk(_, first, stop):
+            return advance_pairs(pairs[first:stop], n_static, boxes.centers, boxes.rotations,
+                                 boxes.half_extents, start.centers, start.rotations, velocity,
+                                 spin, self._margin, margins, self._tolerance,
+                                 toi[first:stop])
+
+        counts = self._workers.map_ranges(chunk, len(pairs), MIN_PAIRS_PER_CHUNK)
+        hit = toi != NO_CONTACT
+        pairs, toi = pairs[hit], toi[hit]
+        status, depth, normal, point, sat_tests = self._collide(pairs)
+        _check_valid(status)
+        contacts = assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic,
+                                     self._static_ids, self._dynamic_ids, toi)
+        between = (status != COLLIDING) & (status != NEAR)
+        if between.any():
+            pairs, toi = pairs[between], toi[between]
+            centers, rotations, extents = boxes_at(pairs, toi, n_static, boxes, start.centers,
+                                                   start.rotations, velocity, spin)
+            # An infinite margin: the signed distance of every pair (sat.signed_distance).
+            status, depth, normal, point, _ = collide_pairs(
+                centers, rotations, extents, np.zeros(len(centers)),
+                np.arange(len(centers)).reshape(-1, 2), margin=math.inf)
+            _check_valid(status)
+            swept = assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic,
+                                      self._static_ids, self._dynamic_ids, toi)
+            swept['depth'] = 0.0
+            contacts = merge_contacts(contacts, swept)
+        stats.update(swept_pairs=int(between.sum()),
+                     advance_steps=sum(steps for steps, _ in counts),
+                     unresolved_pairs=sum(unresolved for _, unresolved in counts))
+        return contacts, sat_tests
 
     def _moved_bodies(self, poses, half_extents):
         """Return which bodies changed pose or size since the last step, bool (D,).
@@ -358,6 +470,14 @@ class World:
         self._workers.close()
 
 
+class _Sweep(NamedTuple):
+    """Each dynamic row's motion since the previous input (continuous.py)."""
+
+    start: Boxes           # the boxes at the previous input's poses (centres, rotations, AABBs)
+    velocity: np.ndarray   # (D, 3) Δc
+    spin: np.ndarray       # (D, 4) unit axis and angle of the rotation
+
+
 class _StaticInput(NamedTuple):
     """The arguments of the last set_static, kept to pad the boxes again for a new margin."""
 
@@ -367,6 +487,19 @@ class _StaticInput(NamedTuple):
     margins: np.ndarray
     categories: np.ndarray
     masks: np.ndarray
+
+
+def _checked_tolerance(value):
+    tolerance = float(value)
+    if not 0.0 < tolerance <= MAX_COORDINATE:  # also refuses NaN
+        raise ValueError('continuous tolerance must be in (0, %g] m, got %r'
+                         % (MAX_COORDINATE, value))
+    return tolerance
+
+
+def _check_valid(status):
+    if np.any(status == INVALID):  # bounded, finite input cannot get here; never guess
+        raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
 
 
 def _checked_margin(name, value):
@@ -516,6 +649,18 @@ def warm_up():
                       ignored_pairs=[(0, DYNAMIC, 1, DYNAMIC), (0, DYNAMIC, 0, STATIC)])
     world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents)
     world.step(_half_moved(scene, 0.5), scene.dynamic_half_extents)
+    # Continuous checking (swept bounds, advancement, pairs touching only in between), with
+    # and without margins: a bullet through a wall besides the scene.
+    bullet = np.array([[0.0, 0.0, -2.0, 0.0, 0.0, 0.0, 1.0]])
+    poses = [np.concatenate([scene.dynamic_poses(t), bullet + [[0.0, 0.0, 4.0 * t] + [0.0] * 4]])
+             for t in (0.0, 0.5, 1.0)]
+    for margin in (0.0, 0.1):
+        world = World(broad_phase='brute_force', margin=margin, continuous=True)
+        world.set_static(np.concatenate([scene.static_poses, [[0.0] * 6 + [1.0]]]),
+                         np.concatenate([scene.static_half_extents, [[1.0, 1.0, 0.01]]]),
+                         margins=margin)
+        for step_poses in poses:
+            world.step(step_poses, [0.05, 0.05, 0.05])
 
 
 def _half_moved(scene, time_s):

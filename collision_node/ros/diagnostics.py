@@ -18,7 +18,10 @@ TOTAL = STAGES.index('total')
 # this many ticks (the max is exact over the whole period). 4096 covers 1 kHz for 4 s.
 SAMPLES_PER_PERIOD = 4096
 WORLD_KEYS = ('broad_phase', 'dynamic_bodies', 'static_bodies', 'still_bodies', 'compared',
-              'candidate_pairs', 'filtered_pairs', 'sat_tests', 'colliding_pairs', 'near_pairs')
+              'candidate_pairs', 'filtered_pairs', 'sat_tests', 'colliding_pairs', 'near_pairs',
+              'continuous', 'swept_pairs', 'unresolved_pairs')
+# stats['continuous'] of a tick checked at its poses only although continuous is on.
+DISCRETE_FALLBACK = 'discrete'
 
 
 class Monitor:
@@ -41,6 +44,8 @@ class Monitor:
         self._last_valid_s = start_s
         self._world = dict.fromkeys(WORLD_KEYS, 0)
         self._world['broad_phase'] = ''
+        self._world['continuous'] = 'off'
+        self._discrete_ticks = 0  # since start: continuous ticks that fell back to discrete
         self._world['reused_result'] = False
         self._world['min_distance'] = ''       # m, signed, in the last tick ('' without pairs)
         self._world['min_distance_pair'] = ''  # as collision_monitor writes it: d3-s1
@@ -74,6 +79,7 @@ class Monitor:
         for key in WORLD_KEYS:
             self._world[key] = world_stats[key]
         self._world['reused_result'] = world_stats.get('reused', False)
+        self._discrete_ticks += str(self._world['continuous']).startswith(DISCRETE_FALLBACK)
         pair = world_stats.get('min_distance_pair')
         self._world['min_distance'] = '' if pair is None else \
             '%.6g' % world_stats['min_distance']
@@ -104,7 +110,8 @@ class Monitor:
                        ('%s_ms_median' % name, _ms(median[stage])),
                        ('%s_ms_p99' % name, _ms(p99[stage])),
                        ('%s_ms_max' % name, _ms(self._period_max[stage]))]
-        values += [('ticks', str(self._ticks)), ('rate_hz', '%.3f' % (self._ticks / elapsed)),
+        values += [('continuous_discrete_ticks', str(self._discrete_ticks)),
+                   ('ticks', str(self._ticks)), ('rate_hz', '%.3f' % (self._ticks / elapsed)),
                    ('input_period_ms', _ms(1e3 * input_period)),
                    ('dropped_inputs', str(self._dropped_total)),
                    ('rejected_inputs', str(self._rejected_total)),

@@ -94,7 +94,8 @@ class CollisionNode(Node):
         config = self._config
         self._world = World(config.broad_phase, config.sphere_prefilter,
                             config.octree_max_depth, config.octree_leaf_cooldown_ticks,
-                            config.threads, config.margin)
+                            config.threads, config.margin, config.continuous,
+                            config.continuous_tolerance)
         self._static_scene = config.static_scene()  # poses, half extents, ids, margins, bits
         self._world.set_static(*self._static_scene)
         self._world.set_filters(*config.filters())
@@ -262,6 +263,8 @@ class CollisionNode(Node):
             if any(getattr(changed, name) != getattr(old, name) for name in filters):
                 self._world.set_filters(*changed.filters())
             self._world.margin = changed.margin
+            self._world.continuous = changed.continuous
+            self._world.continuous_tolerance = changed.continuous_tolerance
             self._config = changed
         return SetParametersResult(successful=True)
 

@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.continuous import CONTINUOUS_TOLERANCE
 from collision_node.pipeline.filters import ALL_CATEGORIES, DEFAULT_CATEGORY, MAX_ID
 from collision_node.pipeline.obb import MAX_COORDINATE, QUATERNION_NORM_TOLERANCE
 from collision_node.pipeline.world import DYNAMIC, STATIC, World
@@ -56,6 +57,11 @@ PARAMETERS = {
                                                '<name>.pose, <name>.half_extents, <name>.enabled'),
     'margin': Spec(DOUBLE, 0.0, 'm; pairs whose exact distance is at most this are reported',
                    True),
+    'continuous': Spec(BOOL, False, 'check each body over its motion since the previous input, '
+                                    'not only at its pose', True),
+    'continuous_tolerance': Spec(DOUBLE, CONTINUOUS_TOLERANCE,
+                                 'm > 0; at a reported toi the boxes are within margin + this',
+                                 True),
     'ignored_pairs': Spec(STRING_ARRAY, [], '"A B" entries, A and B each d<i> (dynamic body i) '
                                             'or a static collider name: never reported', True),
     'tick_rate_hz': Spec(DOUBLE, 0.0, '0: check every input message; > 0: a timer checks the '
@@ -128,6 +134,8 @@ class Parameters(NamedTuple):
     dynamic_collision_mask: list
     colliders: tuple                  # of Collider, in the order of static_colliders
     margin: float
+    continuous: bool
+    continuous_tolerance: float
     ignored_pairs: list               # the entries as given ("A B" strings)
     tick_rate_hz: float
     input_timeout_s: float
@@ -197,6 +205,8 @@ def parse(values):
                                           read['dynamic.collision_mask']),
         colliders=tuple(colliders),
         margin=_margin('margin', read['margin']),
+        continuous=read['continuous'],
+        continuous_tolerance=_tolerance('continuous_tolerance', read['continuous_tolerance']),
         ignored_pairs=read['ignored_pairs'],
         tick_rate_hz=_in_range('tick_rate_hz', read['tick_rate_hz'], 0.0, MAX_TICK_RATE_HZ),
         input_timeout_s=_in_range('input_timeout_s', read['input_timeout_s'], 0.0, math.inf),
@@ -411,6 +421,13 @@ def _margin(name, value):
     return value
 
 
+def _tolerance(name, value):
+    if not 0.0 < value <= MAX_COORDINATE:  # also refuses NaN
+        raise ParameterError(name, 'must be a distance in (0, %g] m, got %r'
+                             % (MAX_COORDINATE, value))
+    return value
+
+
 def _bits(name, value):
     if not -2**63 <= value < 2**63:
         raise ParameterError(name, 'must be a 64-bit integer (bits; -1 sets all), got %r' % value)
@@ -423,7 +440,8 @@ def _bits_list(name, values):
     return [_bits(name, value) for value in values]
 
 
-_RUN_TIME_CHECKS = {'margin': _margin, 'dynamic.collision_category': _bits_list,
+_RUN_TIME_CHECKS = {'margin': _margin, 'continuous_tolerance': _tolerance,
+                    'dynamic.collision_category': _bits_list,
                     'dynamic.collision_mask': _bits_list}
 _COLLIDER_CHECKS = {'margin': _margin, 'collision_category': _bits, 'collision_mask': _bits}
 
