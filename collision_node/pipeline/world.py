@@ -3,6 +3,7 @@
     world = World(broad_phase='auto', sphere_prefilter=True)
     world.set_static(static_poses, static_half_extents)        # (S, 7), (S, 3)
     result = world.step(dynamic_poses, dynamic_half_extents)   # (D, 7), (D, 3) or (3,)
+    world.move_static(static_poses, static_half_extents)       # the same S boxes, changed
 
 Boxes live in one preallocated :class:`~collision_node.pipeline.obb.Boxes`: static rows first
 (written once), dynamic rows after them (rewritten each tick), so a tick copies no static data.
@@ -17,6 +18,16 @@ there). Without the re-sort a long run loses that: 100,000 bouncing bodies, 2 mi
 their rows were sorted, ticked in 70 ms instead of 54. Contacts are reported by input index
 as before, and each pair is still computed in the frame of its smaller id
 (contacts.orient_pairs), so the order changes no bit of the result.
+
+Static boxes that change. :meth:`World.move_static` rewrites only the rows of the boxes that
+changed and marks them "loose": the broad phase's static structure (grid table, trees, sorted
+lists) still holds them where they were, so the World drops every pair the phase finds with a
+loose box and pairs each loose box with every dynamic box itself (an AABB test per pair,
+:func:`_with_loose_statics`). No phase ever needs to know that a static box moved, so none can
+answer from a stale structure. Once the loose boxes cost more than rebuilding the structure
+(``LOOSE_REBUILD_WORK``), the World rebuilds it from the current boxes and nothing is loose.
+The still-body shortcut keeps a contact only when both boxes are bit for bit those of the last
+step: a pair with a static box that changed since then gets a fresh SAT.
 """
 import math
 import time
@@ -27,11 +38,13 @@ import numpy as np
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase import make_broad_phase, NAMES, Settings
 from collision_node.pipeline.broadphase.auto import GRID_BODIES
+from collision_node.pipeline.broadphase.pair_buffer import emit_if, PairBuffer
 from collision_node.pipeline.contacts import (  # noqa: F401 (DYNAMIC re-exported)
     assemble_contacts, CONTACT_DTYPE, DYNAMIC, merge_contacts, orient_pairs, STATIC)
 from collision_node.pipeline.filters import (ALL_CATEGORIES, collision_bits, DEFAULT_CATEGORY,
                                              filters_nothing, PairFilter)
-from collision_node.pipeline.obb import Boxes, MAX_COORDINATE, pad_bounds, set_boxes
+from collision_node.pipeline.obb import (Boxes, InvalidBox, MAX_COORDINATE, overlap_across,
+                                         pad_bounds, set_boxes)
 from collision_node.pipeline.sat import collide_pairs, empty_output, INVALID
 from collision_node.pipeline.scenes import uniform
 from collision_node.pipeline.workers import Workers
@@ -54,6 +67,10 @@ SAT_OUTPUT_GROWTH = 1.5
 # Least candidate pairs in a chunk when the SAT is spread over threads: ~0.15 ms of SAT
 # (~75 ns a pair) against the ~10-50 µs a helper's dispatch costs.
 MIN_PAIRS_PER_CHUNK = 2048
+# The broad phase's static structure is rebuilt once the loose static boxes (moved since it was
+# built) ask for more AABB tests per tick (loose x dynamic) than this many per static box: the
+# rebuild's cost, measured as AABB tests (README, "Changing the scene").
+LOOSE_REBUILD_WORK = 16
 
 
 class Result(NamedTuple):
@@ -78,6 +95,13 @@ class World:
         self._static_masks = np.zeros(0, np.int64)
         self._static_ignorable = np.zeros(0, np.bool_)
         self._static_margins = False  # whether any static box has a margin of its own
+        self._static_rows = np.zeros(0, np.int64)  # row of each box in set_static's order
+        # Static rows moved since the broad phase built its static structure (a flag per row
+        # and their list), and those changed since the last step.
+        self._loose = np.zeros(0, np.bool_)
+        self._loose_rows = np.zeros(0, np.int64)
+        self._changed_rows = np.zeros(0, np.int64)
+        self._loose_buffer = PairBuffer()
         self._filter = PairFilter()
         self._filtering = False  # whether any setting can filter a pair
         self._margin = _checked_margin('margin', margin)
@@ -131,9 +155,15 @@ class World:
             if value is not None})
         if self._phase is None or name != self._phase_name or settings != self._settings:
             phase = make_broad_phase(name, settings, self._workers)  # checks name and settings
-            phase.set_static(self._boxes, self._n_static)
             self._phase_name, self._settings, self._phase = name, settings, phase
+            self._build_static_structure()
             self._last = None
+
+    def _build_static_structure(self):
+        """Let the broad phase build its static structure from the current boxes."""
+        self._phase.set_static(self._boxes, self._n_static)
+        self._loose[:] = False
+        self._loose_rows = np.zeros(0, np.int64)
 
     def set_static(self, poses, half_extents, ids=None, margins=0.0,
                    categories=DEFAULT_CATEGORY, masks=ALL_CATEGORIES):
@@ -166,17 +196,68 @@ class World:
         boxes.margins[:count] = margins[order]
         if self._margin > 0.0 or np.any(margins > 0.0):  # padding with 0 changes no bit
             pad_bounds(boxes.aabbs, boxes.radii, boxes.margins, 0, count, self._margin / 2)
-        self._static = _StaticInput(poses.copy(), np.array(half_extents, np.float64), ids,
-                                    margins, categories, masks)
+        self._static = _StaticInput(
+            poses.copy(), np.broadcast_to(np.asarray(half_extents, np.float64), (count, 3)).copy(),
+            ids, margins, categories, masks)
         self._boxes = boxes
         self._static_margins = bool(np.any(margins > 0.0))
         self._n_static = count
         self._static_ids = ids[order]
+        self._static_rows = _inverse(order)
         self._static_categories = categories[order]
         self._static_masks = masks[order]
+        self._loose = np.zeros(count, np.bool_)
+        self._changed_rows = np.zeros(0, np.int64)
         self._update_filtering()
-        self._phase.set_static(self._boxes, self._n_static)
+        self._build_static_structure()
         self._last = None
+
+    def move_static(self, poses, half_extents=None):
+        """Move (and resize) static boxes in place from the next step on; return how many changed.
+
+        ``poses`` (S, 7) and ``half_extents`` (S, 3; default: as they are) give every static box
+        in the order of the last set_static, S its count; ids, margins and filter bits stay.
+        Only the boxes that differ from their last pose or size are written, checked and
+        re-tested (see the module docstring). Raises ValueError naming the first invalid box
+        (InvalidBox, its index in ``poses``); then nothing changes.
+        """
+        count = self._n_static
+        poses = np.require(poses, np.float64, ['C', 'A', 'W'])
+        if poses.shape != (count, 7):
+            raise ValueError('static poses: need shape (%d, 7), one per static box, got %s'
+                             % (count, poses.shape))
+        extents = self._static.half_extents
+        if half_extents is not None:
+            extents = np.require(half_extents, np.float64, ['C', 'A', 'W'])
+            if extents.shape != (count, 3):
+                raise ValueError('static half extents: need shape (%d, 3), got %s'
+                                 % (count, extents.shape))
+        changed = np.zeros(count, np.bool_)
+        _mark_changed_rows(self._static.poses, poses, changed)
+        if half_extents is not None:
+            _mark_changed_rows(self._static.half_extents, extents, changed)
+        boxes_changed = np.flatnonzero(changed)
+        if not len(boxes_changed):
+            return 0
+        # Checked in scratch storage first, so that an invalid box leaves the world as it was.
+        scratch = Boxes(len(boxes_changed))
+        try:
+            set_boxes(scratch, 0, poses[boxes_changed], extents[boxes_changed])
+        except InvalidBox as error:
+            raise InvalidBox(int(boxes_changed[error.body]), error.reason) from None
+        rows = self._static_rows[boxes_changed]
+        scratch.margins[:] = self._boxes.margins[rows]
+        if self._margin > 0.0 or self._static_margins:
+            pad_bounds(scratch.aabbs, scratch.radii, scratch.margins, 0, len(rows),
+                       self._margin / 2)
+        for name in ('centers', 'rotations', 'half_extents', 'aabbs', 'radii'):
+            getattr(self._boxes, name)[rows] = getattr(scratch, name)
+        self._static.poses[boxes_changed] = poses[boxes_changed]
+        self._static.half_extents[boxes_changed] = extents[boxes_changed]
+        self._loose[rows] = True
+        self._loose_rows = np.union1d(self._loose_rows, rows)
+        self._changed_rows = np.union1d(self._changed_rows, rows)
+        return len(rows)
 
     def set_filters(self, categories=DEFAULT_CATEGORY, masks=ALL_CATEGORIES, ignored_pairs=()):
         """Set the dynamic bodies' collision bits and the pairs never to check.
@@ -214,7 +295,8 @@ class World:
         half_extents = np.asarray(half_extents, dtype=np.float64)
         self._filter.check_count(len(poses))
         moved = self._moved_bodies(poses, half_extents)
-        if moved is not None and not moved.any():
+        changed_rows = self._changed_rows  # static rows changed since the last step
+        if moved is not None and not moved.any() and not len(changed_rows):
             return self._last[2]._replace(stats=dict(self._last[2].stats, reused=True))
         if moved is not None and moved.all():
             moved = None  # nothing to keep: the plain path
@@ -222,7 +304,7 @@ class World:
         n_static = self._n_static
         if n_static + n_dynamic > self._boxes.capacity:
             self._boxes = self._boxes.grown(2 * (n_static + n_dynamic), n_static)
-            self._phase.set_static(self._boxes, n_static)
+            self._build_static_structure()
         self._ticks_since_sort += 1
         if len(self._dynamic_ids) != n_dynamic or self._rows_are_stale(poses, half_extents):
             self._sort_dynamic_rows(poses)
@@ -242,8 +324,19 @@ class World:
             contacts = np.zeros(0, CONTACT_DTYPE)
             broad_done = narrow_done = prepared
         else:
+            if len(self._loose_rows) * n_dynamic > LOOSE_REBUILD_WORK * n_static:
+                self._build_static_structure()
             moved_rows = None if moved is None else moved[self._dynamic_ids]
+            if not self._loose[changed_rows].all():
+                # A box changed but is not loose (the structure was rebuilt): the phase must
+                # pair it with the bodies that kept their pose too.
+                moved_rows = None
             pairs, compared = self._phase.find_pairs(self._boxes, n_static, n_dynamic, moved_rows)
+            if len(self._loose_rows):
+                pairs, loose_compared = self._loose_buffer.fill(
+                    _with_loose_statics, pairs, self._loose, self._loose_rows, self._boxes.aabbs,
+                    n_static, n_static + n_dynamic)
+                compared += loose_compared
             stats['broad_phase'] = self._phase.name
             stats['broad_phase_stats'] = dict(self._phase.stats)
             broad_done = time.perf_counter()
@@ -255,15 +348,19 @@ class World:
                     self._static_masks, self._static_ignorable, self._dynamic_ids)]
             checked = len(pairs)
             if moved is not None:  # the other pairs' contacts are those of the last step
+                static_changed = np.zeros(max(n_static, 1), np.bool_)
+                static_changed[changed_rows] = True
                 pairs = pairs[:_front_pairs_with_a_moved_body(pairs, n_static, self._dynamic_ids,
-                                                              moved)]
+                                                              moved, static_changed)]
             status, depth, normal, point, sat_tests = self._collide(pairs)
             if np.any(status == INVALID):  # bounded, finite input cannot get here; never guess
                 raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
             contacts = assemble_contacts(pairs, status, depth, normal, point, n_static,
                                          n_dynamic, self._static_ids, self._dynamic_ids)
             if moved is not None:
-                contacts = merge_contacts(self._contacts_of_still_bodies(moved), contacts)
+                contacts = merge_contacts(
+                    self._contacts_of_still_bodies(moved, self._static_ids[changed_rows]),
+                    contacts)
             narrow_done = time.perf_counter()
             stats.update(compared=int(compared), candidate_pairs=candidates,
                          filtered_pairs=candidates - checked, sat_tests=int(sat_tests),
@@ -274,6 +371,7 @@ class World:
         contacts.flags.writeable = False
         result = Result(contacts, stats)
         self._last = (poses.copy(), half_extents.copy(), result)
+        self._changed_rows = np.zeros(0, np.int64)
         return result
 
     def _moved_bodies(self, poses, half_extents):
@@ -296,16 +394,19 @@ class World:
             return None
         return moved
 
-    def _contacts_of_still_bodies(self, moved):
-        """Return the last step's contacts between bodies that did not move (or statics).
+    def _contacts_of_still_bodies(self, moved, changed_static_ids):
+        """Return the last step's contacts between bodies that did not move or change.
 
         Their boxes are bit for bit those of the last step, so the broad phase pairs them as
-        then and the SAT would give the same bits.
+        then and the SAT would give the same bits. ``changed_static_ids``: the static boxes
+        moved or resized since then.
         """
         last = self._last[2].contacts
         still = ~moved
-        b_still = np.where(last['type_b'] == STATIC, True,
-                           still[np.minimum(last['id_b'], len(still) - 1)])
+        is_static = last['type_b'] == STATIC
+        b_still = np.where(is_static, True, still[np.minimum(last['id_b'], len(still) - 1)])
+        if len(changed_static_ids):
+            b_still &= ~(is_static & np.isin(last['id_b'], changed_static_ids))
         return last[still[last['id_a']] & b_still]
 
     def _sort_dynamic_rows(self, poses):
@@ -410,19 +511,44 @@ def _mark_changed_rows(previous, current, changed):
 
 
 @kernel
-def _front_pairs_with_a_moved_body(pairs, n_static, dynamic_ids, moved):
-    """Move the pairs with a moved dynamic body to the front of ``pairs``; return how many."""
+def _front_pairs_with_a_moved_body(pairs, n_static, dynamic_ids, moved, static_changed):
+    """Move the pairs with a moved or changed body to the front of ``pairs``; return how many.
+
+    A pair is kept when its dynamic body moved or its static box changed (``static_changed``
+    per static row, at least one entry).
+    """
     count = 0
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
         b = pairs[k, 1]
-        # Without a branch, as in orient_pairs: a static b looks up a valid dummy body.
+        # Without a branch, as in orient_pairs: a static b looks up a valid dummy body, a
+        # dynamic b a valid dummy static flag (False when there are no static boxes).
         keep = moved[dynamic_ids[a - n_static]] | (
-            (b >= n_static) & moved[dynamic_ids[max(b - n_static, 0)]])
+            (b >= n_static) & moved[dynamic_ids[max(b - n_static, 0)]]) | (
+            (b < n_static) & static_changed[min(b, max(n_static - 1, 0))])
         pairs[count, 0] = a
         pairs[count, 1] = b
         count += keep
     return count
+
+
+@kernel
+def _with_loose_statics(pairs, loose, loose_rows, aabbs, n_static, n_total, out):
+    """Write ``pairs`` without those of loose static rows, then each loose row's own pairs.
+
+    A loose row is compared with every dynamic row by its current AABB. Returns (count,
+    compared), as the broad phases do.
+    """
+    count = 0
+    last_static = max(n_static - 1, 0)
+    for k in range(pairs.shape[0]):
+        b = pairs[k, 1]
+        count = emit_if(out, count, not ((b < n_static) and loose[min(b, last_static)]),
+                        pairs[k, 0], b)
+    for s in loose_rows:
+        for a in range(n_static, n_total):
+            count = emit_if(out, count, overlap_across(aabbs, a, aabbs, s), a, s)
+    return count, len(loose_rows) * (n_total - n_static)
 
 
 def _z_order(points):
@@ -515,6 +641,11 @@ def warm_up():
     world.set_filters(categories=np.arange(len(scene.dynamic_poses(0.0))) % 2 + 1,
                       ignored_pairs=[(0, DYNAMIC, 1, DYNAMIC), (0, DYNAMIC, 0, STATIC)])
     world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents)
+    world.step(_half_moved(scene, 0.5), scene.dynamic_half_extents)
+    # Static boxes that moved: loose ones, paired by the World itself, under still bodies.
+    moved = scene.static_poses.copy()
+    moved[:2, 0] += 0.1
+    world.move_static(moved)
     world.step(_half_moved(scene, 0.5), scene.dynamic_half_extents)
 
 
