@@ -17,6 +17,7 @@ from ros_helpers import check_room_contacts, COLLIDERS, EXPECTED, INPUT, room_po
 from collision_node.pipeline.world import DYNAMIC, STATIC
 from collision_node.ros.cdr import serialize_pose_array
 from collision_node.ros.messages import cloud_to_contacts
+from collision_node.ros.params import write_scene_files
 
 DOMAIN_ID = random.Random(os.getpid() + 19).randint(1, 200)
 STATIC_POSES = np.array([pose for pose, _ in COLLIDERS.values()])  # floor, wall, crate
@@ -173,3 +174,21 @@ def test_set_parameters_move_add_and_remove_colliders_with_lasting_ids(harness):
                                   ('ignored_pairs', ['d0 floor']))
     assert result.successful, result.reason
     assert scene.answer() == [(1, DYNAMIC, 2), (1, STATIC, 4), (3, STATIC, 3)]
+
+
+def test_a_scene_from_files_comes_before_the_listed_colliders(harness, tmp_path):
+    files = write_scene_files(tmp_path, [ABOVE, [50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]],
+                              [[0.3, 0.3, 0.3]] * 2, np.full((5, 3), 0.1),
+                              names=['pillar', 'far'])
+    scene = Scene(harness(**files))
+    assert scene.room.node.get_parameter('static_colliders').value == [
+        'pillar', 'far', 'floor', 'wall', 'crate']
+    assert scene.status(lambda v: True)['static_ids'] == \
+        'pillar:0 far:1 floor:2 wall:3 crate:4'
+    assert scene.answer() == [(0, STATIC, 2), (1, DYNAMIC, 2), (1, STATIC, 3), (3, STATIC, 0),
+                              (4, STATIC, 4)]
+    moved = np.concatenate([[ABOVE, ABOVE], STATIC_POSES])  # five poses now: far comes too
+    scene.publish_static(moved)
+    scene.status(lambda v: v['scene_version'] == '1')
+    assert scene.answer() == [(0, STATIC, 2), (1, DYNAMIC, 2), (1, STATIC, 3), (3, STATIC, 0),
+                              (3, STATIC, 1), (4, STATIC, 4)]

@@ -11,6 +11,7 @@ the parameter and says what is wrong with it.
 """
 import json
 import math
+import os
 import re
 import reprlib
 from typing import NamedTuple
@@ -440,6 +441,25 @@ def scene_parameters(static_poses, static_half_extents, dynamic_half_extents, **
                                    np.asarray(static_half_extents, np.float64).tolist()):
         values[name + '.pose'], values[name + '.half_extents'] = pose, extents
     return values
+
+
+def write_scene_files(directory, static_poses, static_half_extents, dynamic_half_extents,
+                      names=None):
+    """Write a scene as ``static_scene_file`` and ``dynamic.half_extents_file``; return them.
+
+    The files go to ``directory`` (scene.npz, dynamic_half_extents.npy); the static boxes are
+    named ``s0``, ``s1``, ... unless ``names`` are given. Returns the two parameters (name ->
+    path), for :func:`write_params_file` with the scene's other parameters.
+    """
+    scene = os.path.join(directory, 'scene.npz')
+    sizes = os.path.join(directory, 'dynamic_half_extents.npy')
+    count = len(static_poses)
+    np.savez(scene, names=np.array(names if names is not None
+                                   else ['s%d' % i for i in range(count)], dtype=str),
+             poses=np.asarray(static_poses, np.float64).reshape(count, POSE_SIZE),
+             half_extents=np.asarray(static_half_extents, np.float64).reshape(count, 3))
+    np.save(sizes, np.asarray(dynamic_half_extents, np.float64))
+    return {'static_scene_file': scene, 'dynamic.half_extents_file': sizes}
 
 
 def write_params_file(path, values, node_name='collision_node'):
