@@ -123,13 +123,16 @@ def test_static_changes_take_the_loose_path_and_the_rebuild_path():
     builds = world._phase.stats['static_builds']
     poses, extents, _ = scene.static()
     poses = poses.copy()
-    poses[:2, 0] += 0.5  # two boxes: loose, the grid's table stays
+    poses[:2, 0] += 1e-3  # two boxes, within their cells: the grid refreshes its copies
     assert world.move_static(poses, extents) == 2
     assert world.move_static(poses, extents) == 0  # unchanged: nothing to do
+    assert not len(world._loose_rows)
+    poses[:2, 0] += 3.0  # into other cells: loose, the grid's table stays
+    assert world.move_static(poses, extents) == 2
     world.step(scene.dynamic_poses, scene.dynamic_extents)
     assert world._phase.stats['static_builds'] == builds
     assert len(world._loose_rows) == 2
-    poses[:, 0] += 0.5  # all of them: loose, they soon cost more than a rebuild
+    poses[:, 0] += 3.0  # all of them: loose, they soon cost more than a rebuild
     world.move_static(poses, extents)
     ticks = 0
     while len(world._loose_rows) and ticks < 10:

@@ -315,6 +315,18 @@ def markdown(results, plot_note):
                        ('reported', _get('reported_pairs')), ('near', _get('near_pairs')),
                        ('filtered', _get('filtered_pairs')), ('SAT tests', _get('sat_tests'))],
                       results['margins']), '']
+    if 'static_moves' in results:
+        out += ['## Static colliders that move (median ms per tick)', '',
+                'The uniform scene, half static, default phase, its dynamic bodies moving: '
+                'static colliders still, 10 moved per tick by World.move_static (the same 10, '
+                'or 10 others each tick; by up to 2 cm, or 1 m: into other cells), all of them '
+                'moved per tick, and all of them given as dynamic bodies instead. A tick is '
+                'move_static and step. The configurations take turns in rounds.', '',
+                table([('bodies', _get('bodies')), ('configuration', _get('configuration')),
+                       ('ticks', _get('ticks')), ('median ms', _get('median_ms')),
+                       ('× still', _get('vs_still')), ('× all dynamic', _get('vs_dynamic')),
+                       ('colliding', _get('colliding_pairs')), ('phase', _get('broad_phase'))],
+                      results['static_moves']), '']
     return '\n'.join(out)
 
 

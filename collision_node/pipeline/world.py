@@ -20,11 +20,13 @@ as before, and each pair is still computed in the frame of its smaller id
 (contacts.orient_pairs), so the order changes no bit of the result.
 
 Static boxes that change. :meth:`World.move_static` rewrites only the rows of the boxes that
-changed and marks them "loose": the broad phase's static structure (grid table, trees, sorted
-lists) still holds them where they were, so the World drops every pair the phase finds with a
-loose box and pairs each loose box with every dynamic box itself (an AABB test per pair,
-:func:`_with_loose_statics`). No phase ever needs to know that a static box moved, so none can
-answer from a stale structure. Once the loose boxes cost more than rebuilding the structure
+changed and tells the broad phase, which keeps in its static structure those it can update
+in place (the grid and the octree a box still in its cells, the k-d tree by a refit, sweep
+and prune by re-sorting its nearly sorted lists). The others are "loose": the structure still
+holds them where they were, so the World drops every pair the phase finds with a loose box
+and pairs each loose box with every dynamic box itself (an AABB test per pair,
+:func:`_with_loose_statics`). A phase never answers for a box it did not keep, so no
+structure is silently stale. Once the loose boxes cost more than rebuilding the structure
 (``LOOSE_REBUILD_WORK``), the World rebuilds it from the current boxes and nothing is loose.
 The still-body shortcut keeps a contact only when both boxes are bit for bit those of the last
 step: a pair with a static box that changed since then gets a fresh SAT.
@@ -260,7 +262,7 @@ class World:
         self._pad_static_rows(rows)
         self._static.poses[boxes_changed] = poses[boxes_changed]
         self._static.half_extents[boxes_changed] = extents[boxes_changed]
-        self._loose[rows] = True
+        self._loose[rows] = ~self._phase.move_static(self._boxes, rows)
         self._loose_rows = np.flatnonzero(self._loose)
         self._changed[rows] = True
         self._changed_rows = np.flatnonzero(self._changed)
@@ -662,11 +664,17 @@ def warm_up():
                       ignored_pairs=[(0, DYNAMIC, 1, DYNAMIC), (0, DYNAMIC, 0, STATIC)])
     world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents)
     world.step(_half_moved(scene, 0.5), scene.dynamic_half_extents)
-    # Static boxes that moved: loose ones, paired by the World itself, under still bodies.
-    moved = scene.static_poses.copy()
-    moved[:2, 0] += 0.1
-    world.move_static(moved)
-    world.step(_half_moved(scene, 0.5), scene.dynamic_half_extents)
+    # Static boxes that moved under still bodies: a little (kept in every phase's structure),
+    # then far (loose in the grid and the octree: paired by the World itself).
+    for name in NAMES:
+        world = World(broad_phase=name)
+        world.set_static(scene.static_poses, scene.static_half_extents)
+        world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents)
+        moved = scene.static_poses.copy()
+        for shift in (1e-3, 2.0):
+            moved[:2, 0] += shift
+            world.move_static(moved)
+            world.step(_half_moved(scene, 0.5), scene.dynamic_half_extents)
 
 
 def _half_moved(scene, time_s):

@@ -113,6 +113,23 @@ def cell_range(lattice, aabbs, row, ranges, slot):
 
 
 @kernel
+def keeps_cells(lattice, aabbs, rows, ranges, slots, kept):
+    """Set ``kept[i]`` where box ``rows[i]`` still has the cell range ``ranges[slots[i]]``.
+
+    A static box that moved within its cells is where a cell structure entered it: only its
+    AABB changed, which the pair tests read (or a copy of which is refreshed).
+    """
+    scratch = np.empty((1, 2, 3), np.int64)
+    for i in range(len(rows)):
+        cell_range(lattice, aabbs, rows[i], scratch, 0)
+        same = True
+        for end in range(2):
+            for k in range(3):
+                same &= scratch[0, end, k] == ranges[slots[i], end, k]
+        kept[i] = same
+
+
+@kernel
 def cell_key(x, y, z):
     """One int64 for a cell; distinct cells of one lattice get distinct keys."""
     return ((x + KEY_OFFSET) << (2 * KEY_BITS)) | ((y + KEY_OFFSET) << KEY_BITS) \
