@@ -250,18 +250,21 @@ class World:
         boxes_changed = np.flatnonzero(changed)
         if not len(boxes_changed):
             return 0
-        rows = self._static_rows[boxes_changed]
+        # All of them (every tick, for statics that move like dynamic bodies): views, no copies.
+        take = slice(None) if len(boxes_changed) == count else boxes_changed
+        rows = self._static_rows[take]
         try:
-            set_boxes(self._boxes, 0, poses[boxes_changed], extents[boxes_changed], rows)
+            set_boxes(self._boxes, 0, poses[take], extents[take], rows)
         except InvalidBox as error:
             # The boxes before the invalid one are written: back to their last (valid) state.
-            set_boxes(self._boxes, 0, self._static.poses[boxes_changed],
-                      self._static.half_extents[boxes_changed], rows)
+            set_boxes(self._boxes, 0, self._static.poses[take], self._static.half_extents[take],
+                      rows)
             self._pad_static_rows(rows)
             raise InvalidBox(int(boxes_changed[error.body]), error.reason) from None
         self._pad_static_rows(rows)
-        self._static.poses[boxes_changed] = poses[boxes_changed]
-        self._static.half_extents[boxes_changed] = extents[boxes_changed]
+        self._static.poses[take] = poses[take]
+        self._static.half_extents[take] = extents[take]
+        rows = np.arange(count) if isinstance(take, slice) else np.sort(rows)  # memory order
         self._loose[rows] = ~self._phase.move_static(self._boxes, rows)
         self._loose_rows = np.flatnonzero(self._loose)
         self._changed[rows] = True

@@ -65,6 +65,7 @@ from collision_node.pipeline.broadphase.pair_buffer import emit, emit_if, PairBu
 from collision_node.pipeline.obb import aabbs_overlap, overlap_across
 
 NULL = -1  # no leaf, no entry
+NO_COPIES = np.zeros((0, 2, 3))  # keeps_cells: the octree reads the boxes' own AABBs
 
 # Paper 001's depth rule L = min(PAPER_MAX_DEPTH, log2(n) - PAPER_DEPTH_OFFSET).
 PAPER_MAX_DEPTH = 6
@@ -205,7 +206,8 @@ class Octree:
         """Keep the static boxes that stayed in their leaves (the pair tests read the boxes)."""
         kept = np.ones(len(rows), np.bool_)
         if self._state is not None:  # else they are inserted as they are at the next build
-            keeps_cells(self._lattice, boxes.aabbs, rows, self._state.static_range, rows, kept)
+            keeps_cells(self._lattice, boxes.aabbs, rows, self._state.static_range,
+                        np.arange(len(self._state.static_range)), NO_COPIES, kept)
         return kept
 
     def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
