@@ -103,6 +103,7 @@ class CollisionNode(Node):
         # parameter and static_poses), the rows of the enabled ones, set_static's arguments.
         self._static_poses = np.array([c.pose for c in config.colliders]).reshape(-1, 7)
         self._enabled_rows = config.enabled_rows()
+        self._disabled_rows = _disabled_rows(config, self._enabled_rows)
         self._static_scene = config.static_scene(self._static_poses)
         self._world.set_static(*self._static_scene)
         self._world.set_filters(*config.filters())
@@ -258,9 +259,8 @@ class CollisionNode(Node):
                                  'static_colliders, in its order)'
                                  % (len(message.poses), len(config.colliders)))
             poses = np.array(message.poses)  # the node's own copy (the message's is a view)
-            disabled = np.setdiff1d(np.arange(len(poses)), self._enabled_rows)
-            rows = disabled  # a disabled collider's pose is checked too: it may be enabled
-            set_boxes(Boxes(len(disabled)), 0, poses[disabled], np.zeros(3))
+            rows = self._disabled_rows  # their poses are checked too: they may be enabled
+            set_boxes(Boxes(len(rows)), 0, poses[rows], np.zeros(3))
             rows = self._enabled_rows
             with self._world_lock:
                 self._world.move_static(poses[rows])
@@ -342,6 +342,7 @@ class CollisionNode(Node):
             self._world.set_static(*scene)
         self._static_poses = poses
         self._enabled_rows = changed.enabled_rows()
+        self._disabled_rows = _disabled_rows(changed, self._enabled_rows)
         self._static_scene = scene
         self._scene_version += 1
         self._monitor.scene(self._scene_version, changed.colliders)
@@ -357,6 +358,11 @@ class CollisionNode(Node):
             values=[KeyValue(key=key, value=value) for key, value in values])
         self._diagnostics_publisher.publish(DiagnosticArray(
             header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+
+
+def _disabled_rows(config, enabled_rows):
+    """Return the list indices of the disabled colliders, int64."""
+    return np.setdiff1d(np.arange(len(config.colliders)), enabled_rows)
 
 
 def _ids(config):

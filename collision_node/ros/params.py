@@ -603,7 +603,7 @@ def load_half_extents(path):
     parameter and what is wrong.
     """
     name = 'dynamic.half_extents_file'
-    extents = _load_array(name, path, np.load)
+    extents = _load(name, path)
     if extents.dtype.kind not in 'fiu' or extents.shape != (3,) and (
             extents.ndim != 2 or extents.shape[1] != 3 or not len(extents)):
         raise ParameterError(name, "'%s' must hold a float array of shape (N, 3) or (3,) "
@@ -632,7 +632,7 @@ def load_static_scene(path):
     0..N-1; raises ParameterError naming the parameter, the array and the first bad collider.
     """
     name = 'static_scene_file'
-    with _load_array(name, path, np.load) as archive:
+    with _load(name, path) as archive:
         unknown = sorted(set(archive.files) - set(SCENE_ARRAYS))
         if unknown:
             raise ParameterError(name, "'%s' has arrays %s; known: %s"
@@ -684,9 +684,9 @@ def load_static_scene(path):
 _KIND_NAMES = {'U': 'strings', 'f': 'numbers', 'i': 'integers', 'b': 'booleans'}
 
 
-def _load_array(name, path, load):
+def _load(name, path):
     try:
-        return load(path, allow_pickle=False)
+        return np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as error:  # missing, unreadable, not numpy, pickled
         raise ParameterError(name, "cannot read '%s': %s" % (path, error)) from None
 
