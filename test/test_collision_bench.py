@@ -174,7 +174,7 @@ def test_python_fcl_finds_the_same_pairs(tiny_run):
 
 def test_every_target_is_listed(tiny_run):
     _, _, results = tiny_run
-    assert len(results['targets']) == 6
+    assert len(results['targets']) == 9
     for target in results['targets']:
         assert target['passed'] in (True, False, None)
 
