@@ -351,7 +351,7 @@ class World:
                     self._build_static_structure()
             moved_rows = None if moved is None else moved[self._dynamic_ids]
             if not self._loose[changed_rows].all():
-                # A box changed but is not loose (the structure was rebuilt): the phase must
+                # A box changed and the phase holds it (kept in place, or rebuilt): it must
                 # pair it with the bodies that kept their pose too.
                 moved_rows = None
             pairs, compared = self._phase.find_pairs(self._boxes, n_static, n_dynamic, moved_rows)

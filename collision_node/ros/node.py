@@ -248,21 +248,23 @@ class CollisionNode(Node):
 
     def _on_static_poses(self, buffer):
         """Move the static colliders from the next tick on; refuse an invalid message whole."""
-        config = self._config
         try:
             message = parse_pose_array(buffer)
-            if message.frame_id and message.frame_id != config.frame_id:
-                raise InputError("frame_id '%s' is not the node's frame_id '%s'"
-                                 % (message.frame_id, config.frame_id))
-            if len(message.poses) != len(config.colliders):
-                raise InputError('%d poses for %d static colliders (one per name in '
-                                 'static_colliders, in its order)'
-                                 % (len(message.poses), len(config.colliders)))
             poses = np.array(message.poses)  # the node's own copy (the message's is a view)
-            rows = self._disabled_rows  # their poses are checked too: they may be enabled
-            set_boxes(Boxes(len(rows)), 0, poses[rows], np.zeros(3))
-            rows = self._enabled_rows
+            # Checked against the colliders as they are: a parameter change (maybe from
+            # another thread) comes before or after the whole message.
             with self._world_lock:
+                config = self._config
+                if message.frame_id and message.frame_id != config.frame_id:
+                    raise InputError("frame_id '%s' is not the node's frame_id '%s'"
+                                     % (message.frame_id, config.frame_id))
+                if len(poses) != len(config.colliders):
+                    raise InputError('%d poses for %d static colliders (one per name in '
+                                     'static_colliders, in its order)'
+                                     % (len(poses), len(config.colliders)))
+                rows = self._disabled_rows  # their poses are checked too: they may be enabled
+                set_boxes(Boxes(len(rows)), 0, poses[rows], np.zeros(3))
+                rows = self._enabled_rows
                 self._world.move_static(poses[rows])
                 if not np.array_equal(poses, self._static_poses):
                     self._scene_version += 1
