@@ -255,6 +255,7 @@ BAD_YAML = {  # name the error must name: the params file
     # A double where an integer is declared: rclpy's type check, reported with the name.
     'table.collision_mask': GOOD_YAML.replace('table:\n', 'table:\n  collision_mask: 3.0\n'),
     'margin': GOOD_YAML + 'margin: -0.5\n',
+    'static_scene_file': GOOD_YAML + 'static_scene_file: /nonexistent/scene.npz\n',
 }
 
 

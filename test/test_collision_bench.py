@@ -186,7 +186,7 @@ def test_python_fcl_finds_the_same_pairs(tiny_run):
 
 def test_every_target_is_listed(tiny_run):
     _, _, results = tiny_run
-    assert len(results['targets']) == 6
+    assert len(results['targets']) == 9
     for target in results['targets']:
         assert target['passed'] in (True, False, None)
 
@@ -248,3 +248,15 @@ def test_a_skipped_row_keeps_its_name_and_says_why():
     lines = report.table(columns, [{'scene': 'uniform', 'skipped': 'too slow'},
                                    {'scene': 'uniform', 'median_ms': 1.5, 'ticks': 3}])
     assert lines.splitlines()[2:] == ['| uniform | too slow |  |', '| uniform | 1.5 | 3 |']
+
+
+def test_static_moves_section_times_every_configuration(tiny_run):
+    _, _, results = tiny_run
+    rows = results['static_moves']
+    assert [row['configuration'] for row in rows] == [
+        'statics still', '10 statics moved (the same)', '10 statics moved (others each tick)',
+        '10 statics jump 1 m (others each tick)', 'all statics moved', 'all bodies dynamic']
+    assert rows[0]['vs_still'] == 1.0 and rows[-1]['vs_dynamic'] == 1.0
+    assert all(row['median_ms'] > 0 and row['ticks'] == rows[0]['ticks'] for row in rows)
+    # The same scene: the statics given as dynamic bodies add their pairs with each other.
+    assert rows[-1]['colliding_pairs'] >= rows[0]['colliding_pairs'] > 0

@@ -77,6 +77,20 @@ for node in nodes:
         bad[7, 2] = np.nan
         node._check(serialize_pose_array(1, 0, '', bad))
     node._check(serialize_pose_array(1, 0, '', np.zeros((0, 7))))
+    # Static colliders that change: a few moved by static_poses (loose) under still bodies,
+    # then all of them (a rebuild), one moved and resized by parameters, one removed.
+    statics = room.static_poses.copy()
+    for moving in (slice(0, 2), slice(None)):
+        statics[moving, 0] += 0.05
+        node._on_static_poses(serialize_pose_array(0, 0, '', statics))
+        for t in (0.5, 0.5, 1.0):
+            node._check(serialize_pose_array(1, 0, '', room.dynamic_poses(t)))
+    for change in ([Parameter('c1.pose', value=(statics[1] + [0.1, 0, 0, 0, 0, 0, 0]).tolist()),
+                    Parameter('c1.half_extents', value=[0.3, 0.2, 0.1])],
+                   [Parameter('static_colliders', value=names[1:])]):
+        assert node.set_parameters_atomically(change).successful
+        for t in (1.0, 1.0, 0.5):
+            node._check(serialize_pose_array(1, 0, '', room.dynamic_poses(t)))
 # auto past GRID_BODIES: it measures the boxes' spread to choose between its phases.
 assert nodes[0].set_parameters([Parameter('broad_phase', value='auto'),
                                  Parameter('dynamic.collision_category', value=[1])])[0].successful
@@ -109,7 +123,8 @@ def test_nothing_compiles_during_a_tick():
     """In a fresh process: after the node's warm-up, no tick path adds compiled code.
 
     Every broad phase, sphere prefilter on and off, a static collider enabled and disabled,
-    one size for all bodies and one per body, reused answers, a rejected and an empty input.
+    one size for all bodies and one per body, reused answers, a rejected and an empty input,
+    static colliders moved, resized and removed.
     """
     done = subprocess.run([sys.executable, '-c', NO_COMPILE_CHECK], cwd=REPO,
                           capture_output=True, text=True, timeout=300)

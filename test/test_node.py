@@ -141,8 +141,8 @@ def test_run_time_parameters(harness):
     for name, value, words in (('broad_phase', 'bvh', 'unknown broad phase'),
                                ('octree.max_depth', 11, 'depth'),
                                ('frame_id', 'map', 'read-only'),
-                               ('static_colliders', ['floor'], 'read-only'),
-                               ('wall.pose', [0.0] * 7, 'read-only'),
+                               ('static_colliders', ['floor', 'floor'], 'twice'),
+                               ('wall.pose', [0.0] * 7, 'unit quaternion'),
                                ('crate.enabled', 1, 'type')):
         result = node.set_parameters([Parameter(name, value=value)])[0]
         assert not result.successful and words in result.reason, (name, result.reason)

@@ -169,9 +169,13 @@ def test_run_time_changes():
     for name, value, words in (('broad_phase', 'nope', 'unknown broad phase'),
                                ('octree.max_depth', 11, 'depth'),
                                ('shelf.enabled', 1, 'bool'),
-                               ('shelf.pose', [0.0] * 7, 'fixed at start'),
-                               ('static_colliders', ['a'], 'fixed at start'),
+                               ('shelf.pose', [0.0] * 7, 'unit quaternion'),
+                               ('shelf.half_extents', [1.0, 2.0], '3 values'),
+                               ('static_colliders', ['a'], 'a.pose'),
                                ('frame_id', 'map', 'fixed at start'),
+                               ('dynamic.half_extents', [1.0] * 3, 'fixed at start'),
+                               ('no_such_parameter', 1.0, 'undeclared'),
+                               ('shelf.colour', 'red', 'undeclared'),
                                ('margin', -0.1, 'distance'),
                                ('continuous_tolerance', math.nan, 'distance'),
                                ('continuous_tolerance', -1e-4, 'distance'),
@@ -183,7 +187,111 @@ def test_run_time_changes():
                                ('ignored_pairs', ['d1-d2'], 'two bodies')):
         with pytest.raises(ParameterError, match=words) as raised:
             params.run_time_change(parsed, name, value)
-        assert raised.value.name == name
+        assert raised.value.name in (name, 'a.pose')
+
+
+def test_colliders_are_moved_added_and_removed_with_ids_for_their_lifetime():
+    parsed = params.parse(dict(GOOD, ignored_pairs=['d0 shelf']))
+    assert [(c.name, c.static_id) for c in parsed.colliders] == [('table', 0), ('shelf', 1)]
+    moved = params.run_time_change(parsed, 'table.pose', [1.0, 0.0, 0.4, 0.0, 0.0, 0.0, 1.0])
+    assert moved.colliders[0].pose[0] == 1.0 and moved.colliders[1] is parsed.colliders[1]
+    resized = params.run_time_change(parsed, 'shelf.half_extents', [1, 2, 3])
+    assert resized.colliders[1].half_extents.tolist() == [1.0, 2.0, 3.0]
+    # A block for a name not yet listed is checked and kept aside (the node's parameters).
+    door = {'door.pose': [3.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], 'door.half_extents': [0.05, 0.5, 1],
+            'door.collision_mask': 2}
+    for name, value in door.items():
+        assert params.run_time_change(parsed, name, value) == parsed
+    with pytest.raises(ParameterError, match='unit quaternion'):
+        params.run_time_change(parsed, 'door.pose', [0.0] * 7)
+    added = params.run_time_change(parsed, 'static_colliders', ['table', 'door', 'shelf'],
+                                   door.get)
+    assert [(c.name, c.static_id) for c in added.colliders] == [
+        ('table', 0), ('door', 2), ('shelf', 1)]
+    assert added.colliders[1].collision_mask == 2 and added.colliders[1].enabled
+    assert added.filters()[2].tolist() == [[0, 0, 1, 1]]  # shelf keeps id 1
+    # Removed, then added again: a new collider with a new id, never an old one's.
+    removed = params.run_time_change(added, 'static_colliders', ['door', 'shelf'])
+    again = params.run_time_change(removed, 'static_colliders', ['door', 'shelf', 'table'],
+                                   {'table.pose': TABLE['table.pose'],
+                                    'table.half_extents': [0.1, 0.1, 0.1]}.get)
+    assert [c.static_id for c in again.colliders] == [2, 1, 3]
+    # A collider named in ignored_pairs cannot go unless the entry goes in the same call.
+    without_shelf = params.run_time_change(added, 'static_colliders', ['table', 'door'])
+    with pytest.raises(ParameterError, match="'shelf' is neither") as raised:
+        params.check_run_time(without_shelf)
+    assert raised.value.name == 'static_colliders'
+    params.check_run_time(params.run_time_change(without_shelf, 'ignored_pairs', []))
+    for names, words in ((['table', 'table'], 'twice'), (['door'], 'door.pose'),
+                         (['margin'], 'taken')):
+        with pytest.raises(ParameterError, match=words):
+            params.run_time_change(parsed, 'static_colliders', names)
+
+
+def test_half_extents_file(tmp_path):
+    sizes = np.random.default_rng(1).uniform(0.1, 0.3, (1000, 3))
+    np.save(tmp_path / 'sizes.npy', sizes)
+    parsed = params.parse({'dynamic.half_extents_file': str(tmp_path / 'sizes.npy')})
+    np.testing.assert_array_equal(parsed.dynamic_half_extents, sizes)
+    np.save(tmp_path / 'one.npy', np.array([0.1, 0.2, 0.3], np.float32))
+    one = params.parse({'dynamic.half_extents_file': str(tmp_path / 'one.npy')})
+    assert one.dynamic_half_extents.shape == (3,)
+    bad = sizes.copy()
+    bad[7, 1] = -1.0
+    np.save(tmp_path / 'negative.npy', bad)
+    np.save(tmp_path / 'flat.npy', sizes.ravel())
+    np.save(tmp_path / 'objects.npy', np.array([{'a': 1}], dtype=object), allow_pickle=True)
+    (tmp_path / 'text.npy').write_text('0.1 0.1 0.1')
+    for name, words in (('negative.npy', 'value 22 is -1.0'), ('flat.npy', r'shape \(3000,\)'),
+                        ('objects.npy', 'cannot read'), ('text.npy', 'cannot read'),
+                        ('missing.npy', 'cannot read')):
+        with pytest.raises(ParameterError, match=words) as raised:
+            params.parse({'dynamic.half_extents_file': str(tmp_path / name)})
+        assert raised.value.name == 'dynamic.half_extents_file'
+
+
+def scene_file(path, count=5, **arrays):
+    rng = np.random.default_rng(2)
+    poses = np.zeros((count, 7))
+    poses[:, :3] = rng.uniform(-5, 5, (count, 3))
+    poses[:, 6] = 1.0
+    contents = {'names': np.array(['box%d' % i for i in range(count)]), 'poses': poses,
+                'half_extents': rng.uniform(0.1, 1.0, (count, 3))}
+    contents.update(arrays)
+    np.savez(path, **{k: v for k, v in contents.items() if v is not None})
+    return contents
+
+
+def test_static_scene_file(tmp_path):
+    path = str(tmp_path / 'scene.npz')
+    contents = scene_file(path, enabled=np.array([True, False, True, True, True]),
+                          margins=np.full(5, 0.1), collision_masks=np.arange(5))
+    parsed = params.parse(dict(GOOD, static_scene_file=path))
+    assert [c.name for c in parsed.colliders] == ['box0', 'box1', 'box2', 'box3', 'box4',
+                                                  'table', 'shelf']
+    assert [c.static_id for c in parsed.colliders] == list(range(7))
+    poses, extents, ids, margins, categories, masks = parsed.static_scene()
+    assert ids.tolist() == [0, 2, 3, 4, 5]  # box1 and the shelf are disabled
+    np.testing.assert_array_equal(poses[:4], contents['poses'][[0, 2, 3, 4]])
+    np.testing.assert_array_equal(extents[:4], contents['half_extents'][[0, 2, 3, 4]])
+    assert margins.tolist() == [0.1] * 4 + [0.0] and masks.tolist() == [0, 2, 3, 4, -1]
+    bad_pose = contents['poses'].copy()
+    bad_pose[3, 5] = 2.0
+    for arrays, words in (({'poses': bad_pose}, 'box3 \\(row 3'),
+                          ({'poses': bad_pose[:, :6]}, 'poses must be numbers of shape'),
+                          ({'names': None}, "no array 'names'"),
+                          ({'names': np.array(['a', 'a', 'b', 'c', 'd'])}, 'twice'),
+                          ({'colour': np.zeros(5)}, 'known'),
+                          ({'half_extents': -contents['half_extents']}, '>= 0'),
+                          ({'enabled': np.ones(5)}, 'enabled must be booleans'),
+                          ({'margins': np.full(5, np.nan)}, 'box0 \\(row 0\\) margin')):
+        scene_file(path, **arrays)
+        with pytest.raises(ParameterError, match=words) as raised:
+            params.parse({'static_scene_file': path})
+        assert raised.value.name == 'static_scene_file', raised.value
+    scene_file(path, names=np.array(['box0', 'table', 'b', 'c', 'd']))
+    with pytest.raises(ParameterError, match="'table' appears twice"):
+        params.parse(dict(GOOD, static_scene_file=path))
 
 
 # Through rclpy: the same checks must hold for values that come from a params file.
@@ -274,10 +382,14 @@ qos_overrides:
                domain_id=DOMAIN_ID)
     node = CollisionNode(context=context)
     try:
-        (subscription,) = node.subscriptions
-        assert subscription.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
-        assert subscription.qos_profile.depth == 3
-        assert subscription.qos_profile.history == HistoryPolicy.KEEP_LAST
+        dynamic, static = sorted(node.subscriptions, key=lambda s: s.topic_name)
+        assert dynamic.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+        assert dynamic.qos_profile.depth == 3
+        assert dynamic.qos_profile.history == HistoryPolicy.KEEP_LAST
+        # static_poses keeps the default: reliable, the newest only.
+        assert static.topic_name == '/static_poses'
+        assert static.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+        assert static.qos_profile.depth == 1
     finally:
         node.destroy_node()
 

@@ -35,7 +35,8 @@ def python_snippets():
 
 def test_every_snippet_has_a_test():
     assert sorted(python_snippets()) == sorted(
-        ['The collisions cloud', 'Publishing poses from a script', 'Python API'])
+        ['The collisions cloud', 'Publishing poses from a script', 'Python API',
+         'Changing the scene while the node runs'])
 
 
 def test_python_api_snippet():
@@ -60,7 +61,7 @@ def test_cloud_snippet_reads_a_real_cloud():
     contacts = world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents).contacts
     assert len(contacts) > 0
     namespace = {}
-    snippet, = python_snippets()['The collisions cloud']
+    _, snippet = python_snippets()['The collisions cloud']
     exec(snippet, namespace)
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
@@ -70,3 +71,13 @@ def test_cloud_snippet_reads_a_real_cloud():
         [int(c['id_a']), int(c['type_b']), int(c['id_b'])] for c in contacts]
     np.testing.assert_allclose([float(depth) for *_, depth in rows], contacts['depth'],
                                rtol=1e-6)
+
+
+def test_static_names_snippet_reads_the_diagnostics():
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    snippet, _ = python_snippets()['The collisions cloud']
+    namespace = {}
+    exec(snippet, namespace)
+    status = DiagnosticStatus(values=[KeyValue(key='scene_version', value='3'),
+                                      KeyValue(key='static_ids', value='floor:0 crate:2 door:3')])
+    assert namespace['static_names'](status) == {0: 'floor', 2: 'crate', 3: 'door'}

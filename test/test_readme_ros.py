@@ -13,7 +13,9 @@ import subprocess
 import sys
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
+from rclpy.executors import SingleThreadedExecutor
 from ros_helpers import make_context, node_environment, REPO
 from test_readme import code_blocks, python_snippets
 
@@ -80,3 +82,55 @@ def test_the_script_gets_its_answer_to_the_monitor(tmp_path):
         context.try_shutdown()
     assert monitor.returncode == 0, errors + (tmp_path / 'node.log').read_text()
     assert re.fullmatch(shown_as(expected), masked(output)), output
+
+
+CHANGING = 'Changing the scene while the node runs'
+
+
+def test_the_scene_changing_scripts_change_the_nodes_scene(tmp_path):
+    """Both scripts of the section, run as written against the node on the demo room."""
+    node_line = code_blocks('bash')[SECTION][0].splitlines()[0]
+    move_script, change_script = python_snippets()[CHANGING]
+    (tmp_path / 'move.py').write_text(move_script)
+    (tmp_path / 'change.py').write_text(change_script)
+    env = node_environment(DOMAIN_ID)
+    context = make_context(DOMAIN_ID)
+    observer = rclpy.create_node('observer', context=context)
+    statuses = []
+    observer.create_subscription(DiagnosticArray, '/diagnostics',
+                                 lambda message: statuses.extend(message.status), 10)
+    with open(tmp_path / 'node.log', 'w') as node_log:
+        node = subprocess.Popen(command(node_line), cwd=REPO, env=env, stdout=node_log,
+                                stderr=subprocess.STDOUT)
+
+    def wait_for_status(condition):
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while True:
+            assert node.poll() is None, (tmp_path / 'node.log').read_text()
+            assert time.monotonic() < deadline, 'no such status'
+            executor.spin_once(timeout_sec=0.1)
+            while statuses:
+                found = {item.key: item.value for item in statuses.pop(0).values}
+                if condition(found):
+                    return found
+
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(observer)
+    try:
+        wait_for_status(lambda found: found['scene_version'] == '0')
+        moved = subprocess.run([sys.executable, 'move.py'], cwd=tmp_path, env=env,
+                               capture_output=True, text=True, timeout=START_TIMEOUT_S)
+        assert moved.returncode == 0, moved.stderr
+        wait_for_status(lambda found: found['scene_version'] == '1')
+        changed = subprocess.run([sys.executable, 'change.py'], cwd=tmp_path, env=env,
+                                 capture_output=True, text=True, timeout=START_TIMEOUT_S)
+        assert changed.returncode == 0, changed.stderr
+        assert changed.stdout == 'True \n'
+        found = wait_for_status(lambda found: found['scene_version'] == '2')
+        assert found['static_ids'] == \
+            'floor:0 wall_north:1 wall_south:2 table:3 shelf_left:4 door:6'
+    finally:
+        stop_process(node, STOP_TIMEOUT_S)
+        executor.shutdown()
+        observer.destroy_node()
+        context.try_shutdown()

@@ -34,7 +34,7 @@ OCTREE_DEPTHS = tuple(range(1, 10))  # paper 001's Table 1
 PAPER000_OCTREE_DEPTH = 4            # paper 000's octree ran at depth 4
 DEFAULT_PHASE = 'auto'               # what the node uses unless told otherwise
 SECTIONS = ('paper001', 'octree_depths', 'paper000', 'scenes', 'accuracy', 'fcl', 'profile',
-            'threads', 'margins', 'continuous')
+            'threads', 'margins', 'continuous', 'static_moves')
 THREAD_COUNTS = (1, 2)  # the World's threads: this machine's cores
 # The margins section: margins as fractions of the mean box size (its full side), and one run
 # with half the dynamic pairs masked out (categories 1 and 2 in turn, each accepting its own).
@@ -43,6 +43,13 @@ MARGIN_ROUNDS = 5  # the configurations take turns, a few ticks each, so noise h
 # The continuous section: the uniform scene's inputs at 60 Hz (its usual speed, up to ~1.4 cm
 # and 0.03 rad a tick) and at 15 Hz (4x the motion per tick).
 CONTINUOUS_RATES_HZ = (60.0, 15.0)
+
+# The static_moves section: static colliders moved every tick (World.move_static), by up to this
+# much along x (m, a sine per collider: within their cells), or by STATIC_JUMP_M (into other
+# cells), against the same scene with them still and with every body dynamic.
+STATIC_MOVE_M = 0.02
+STATIC_JUMP_M = 1.0
+STATIC_MOVES_PER_TICK = 10
 
 
 class Plan(NamedTuple):
@@ -62,6 +69,7 @@ class Plan(NamedTuple):
     thread_sizes: tuple        # (bodies, ticks): uniform scene, default phase, 1 and 2 threads
     margin_sizes: tuple        # (bodies, ticks per configuration): uniform scene, margins
     continuous_sizes: tuple    # (bodies, ticks per configuration): uniform scene, continuous
+    static_move_sizes: tuple   # (bodies, ticks per configuration): uniform scene, statics moving
     budget_s: float            # a run stops early (marked truncated) after this wall time
     # A run expected to take longer per tick is skipped; one stops after a tick that took
     # longer. Keep it >= 1 s: then a skipped run misses every DESIGN §5 target even if its
@@ -90,6 +98,7 @@ PLANS = {
         thread_sizes=((10000, 120), (100000, 30)),
         margin_sizes=((1000, 200), (10000, 100)),
         continuous_sizes=((1000, 200), (10000, 100)),
+        static_move_sizes=((10000, 200), (100000, 20)),
         budget_s=120.0, max_tick_s=5.0),
     'quick': Plan(
         flying_out_sizes=(128, 256, 512, 1024), flying_out_ticks=60, flying_out_dt=5.0 / 60,
@@ -106,6 +115,7 @@ PLANS = {
         thread_sizes=((10000, 40), (100000, 10)),
         margin_sizes=((1000, 100), (10000, 40)),
         continuous_sizes=((1000, 100), (10000, 40)),
+        static_move_sizes=((10000, 100),),
         budget_s=3.0, max_tick_s=1.0),
     # For the tests: every section on small scenes, in seconds.
     'tiny': Plan(
@@ -119,6 +129,7 @@ PLANS = {
         thread_sizes=((1000, 3),),
         margin_sizes=((300, 5),),
         continuous_sizes=((300, 5),),
+        static_move_sizes=((300, 10),),
         budget_s=5.0, max_tick_s=1.0),
 }
 
@@ -467,6 +478,82 @@ class Bench:
                         bodies, rate, 'on' if world.continuous else 'off',
                         rows[-1]['median_ms']))
                     world.close()
+        return rows
+
+    def static_moves(self):
+        """Time static colliders that move every tick against the same scene without.
+
+        The uniform scene, half static, default phase, its dynamic bodies moving: statics
+        still; 10 moved per tick (the same 10, and 10 others each tick; by 2 cm, and by 1 m:
+        into other cells); all of them moved per tick; and all of them given as dynamic bodies
+        instead, moving alike. The
+        configurations take turns in rounds, as in :meth:`margins`; the time of a tick is
+        move_static's and step's together.
+        """
+        rows = []
+        for bodies, ticks in self.plan.static_move_sizes:
+            scene = self.scene('uniform', bodies)
+            statics = len(scene.static_poses)
+            moves = STATIC_MOVES_PER_TICK
+
+            def others(tick, moves=moves, statics=statics):
+                return (np.arange(moves) + moves * tick) % statics
+
+            configurations = [  # (label, the statics moved at a tick, by up to m)
+                ('statics still', None, 0.0),
+                ('%d statics moved (the same)' % moves, lambda tick: np.arange(moves),
+                 STATIC_MOVE_M),
+                ('%d statics moved (others each tick)' % moves, others, STATIC_MOVE_M),
+                ('%d statics jump %g m (others each tick)' % (moves, STATIC_JUMP_M), others,
+                 STATIC_JUMP_M),
+                ('all statics moved', lambda tick: np.arange(statics), STATIC_MOVE_M),
+                ('all bodies dynamic', lambda tick: np.arange(statics), STATIC_MOVE_M)]
+            all_extents = np.concatenate([scene.static_half_extents,
+                                          scene.dynamic_half_extents])
+            worlds = []
+            for label, _, _ in configurations:
+                world = World(broad_phase=DEFAULT_PHASE)
+                if label != 'all bodies dynamic':
+                    world.set_static(scene.static_poses, scene.static_half_extents)
+                worlds.append(world)
+            samples = [[] for _ in configurations]
+            per_round = max(1, ticks // MARGIN_ROUNDS)
+            for first in range(0, per_round * MARGIN_ROUNDS, per_round):
+                for world, (label, moving, amplitude), times in zip(worlds, configurations,
+                                                                    samples):
+                    for tick in range(first, first + per_round):
+                        poses = scene.dynamic_poses(tick * DT)
+                        static_poses = None
+                        if moving is not None:
+                            static_poses = scene.static_poses.copy()
+                            rows_moved = moving(tick)
+                            static_poses[rows_moved, 0] += amplitude * np.sin(
+                                0.3 * tick + rows_moved)
+                        if label == 'all bodies dynamic':
+                            poses = np.concatenate([static_poses, poses])
+                        before = time.perf_counter()
+                        if label == 'all bodies dynamic':
+                            result = world.step(poses, all_extents)
+                        else:
+                            if static_poses is not None:
+                                world.move_static(static_poses)
+                            result = world.step(poses, scene.dynamic_half_extents)
+                        times.append((1e3 * (time.perf_counter() - before), result.stats))
+            for (label, _, _), times in zip(configurations, samples):
+                rows.append({
+                    'scene': 'uniform', 'bodies': bodies, 'static_bodies': statics,
+                    'configuration': label, 'ticks': len(times),
+                    'median_ms': float(np.median([ms for ms, _ in times])),
+                    'colliding_pairs': float(np.mean([s['colliding_pairs'] for _, s in times])),
+                    'broad_phase': times[-1][1]['broad_phase']})
+                self.progress('static_moves n=%d %s: %.3f ms'
+                              % (bodies, label, rows[-1]['median_ms']))
+            these = rows[-len(configurations):]
+            for row in these:
+                row['vs_still'] = row['median_ms'] / these[0]['median_ms']
+                row['vs_dynamic'] = row['median_ms'] / these[-1]['median_ms']
+            for world in worlds:
+                world.close()
         return rows
 
     def _quickest_phase(self, scene_name, bodies):

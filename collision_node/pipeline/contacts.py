@@ -2,7 +2,7 @@
 
 Fields, ids and order are those of the ``collisions`` PointCloud2 (README, "The collisions
 cloud"), with float64 instead of float32: body A is always dynamic; ``type`` is DYNAMIC (id =
-index in the PoseArray) or STATIC (id = index in the ``static_colliders`` list); two dynamic
+index in the PoseArray) or STATIC (id = the collider's id, set_static's ``ids``); two dynamic
 bodies come as id_a < id_b; rows are sorted by (id_a, type_b, id_b). A pair is reported when
 it collides (``distance`` = −``depth`` ≤ 0) or lies within its margin (``distance`` > 0,
 ``depth`` 0). ``toi`` is the first time in the tick's interval [0, 1] at which the pair came

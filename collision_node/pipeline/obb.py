@@ -47,6 +47,15 @@ REASONS = {
 }
 
 
+class InvalidBox(ValueError):
+    """A box that set_boxes refuses: ``body`` is its index in the input, ``reason`` why."""
+
+    def __init__(self, body, reason):
+        super().__init__('body %d: %s' % (body, reason))
+        self.body = body
+        self.reason = reason
+
+
 class Boxes:
     """Preallocated structure-of-arrays storage for ``capacity`` boxes."""
 
@@ -76,8 +85,8 @@ def set_boxes(boxes, start, poses, half_extents, rows=None):
     """Write boxes from ``poses`` (N, 7) and ``half_extents`` (N, 3) or (3,) at ``start``.
 
     Body i goes to row ``start + rows[i]`` (default: ``start + i``); ``rows`` is a permutation
-    of range(N). Raises ValueError naming the first invalid body (index within ``poses``) and
-    why.
+    of range(N). Raises InvalidBox (a ValueError) naming the first invalid body (index within
+    ``poses``) and why.
     """
     poses = np.require(poses, np.float64, ['C', 'A', 'W'])
     if poses.ndim != 2 or poses.shape[1] != 7:
@@ -100,7 +109,7 @@ def set_boxes(boxes, start, poses, half_extents, rows=None):
     bad, code = _write_boxes(poses, half_extents, start, rows, boxes.centers,
                              boxes.rotations, boxes.half_extents, boxes.aabbs, boxes.radii)
     if bad >= 0:
-        raise ValueError('body %d: %s' % (bad, REASONS[code]))
+        raise InvalidBox(bad, REASONS[code])
 
 
 @kernel

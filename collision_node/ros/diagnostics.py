@@ -50,6 +50,18 @@ class Monitor:
         self._world['min_distance'] = ''       # m, signed, in the last tick ('' without pairs)
         self._world['min_distance_pair'] = ''  # as collision_monitor writes it: d3-s1
         self._phase_stats = {}  # the broad phase's own counters (octree leaves, sorts, ...)
+        self._scene_version = 0
+        self._static_ids = ''  # name:id of every static collider, in static_colliders order
+
+    def scene(self, version, colliders=None):
+        """Record the static scene's version and, when given, its colliders' names and ids.
+
+        ``colliders`` (with ``name`` and ``static_id``) only when the list changed: its text
+        takes ~0.3 µs a collider.
+        """
+        self._scene_version = version
+        if colliders is not None:
+            self._static_ids = ' '.join('%s:%d' % (c.name, c.static_id) for c in colliders)
 
     def received(self):
         """Count an input message arriving (it sets the input period)."""
@@ -110,6 +122,8 @@ class Monitor:
                        ('%s_ms_median' % name, _ms(median[stage])),
                        ('%s_ms_p99' % name, _ms(p99[stage])),
                        ('%s_ms_max' % name, _ms(self._period_max[stage]))]
+        values += [('scene_version', str(self._scene_version)),
+                   ('static_ids', self._static_ids)]
         values += [('continuous_discrete_ticks', str(self._discrete_ticks)),
                    ('ticks', str(self._ticks)), ('rate_hz', '%.3f' % (self._ticks / elapsed)),
                    ('input_period_ms', _ms(1e3 * input_period)),

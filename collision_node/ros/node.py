@@ -55,6 +55,7 @@ from visualization_msgs.msg import MarkerArray
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.contacts import CONTACT_DTYPE
 from collision_node.pipeline.jit_progress import compile_progress
+from collision_node.pipeline.obb import Boxes, InvalidBox, set_boxes
 from collision_node.pipeline.world import warm_up, World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import CdrError, parse_pose_array
@@ -89,6 +90,9 @@ class CollisionNode(Node):
     """Checks the dynamic boxes of each PoseArray against each other and the static colliders."""
 
     def __init__(self, **kwargs):
+        # A collider added at run time brings its block (<name>.pose, ...): parameters the node
+        # could not declare before. _on_set_parameters refuses every name it does not know.
+        kwargs.setdefault('allow_undeclared_parameters', True)
         super().__init__('collision_node', **kwargs)
         self._config = params.declare(self)
         config = self._config
@@ -96,9 +100,15 @@ class CollisionNode(Node):
                             config.octree_max_depth, config.octree_leaf_cooldown_ticks,
                             config.threads, config.margin, config.continuous,
                             config.continuous_tolerance)
-        self._static_scene = config.static_scene()  # poses, half extents, ids, margins, bits
+        # The static colliders now: the pose of each (list order: the newest of its pose
+        # parameter and static_poses), the rows of the enabled ones, set_static's arguments.
+        self._static_poses = np.array([c.pose for c in config.colliders]).reshape(-1, 7)
+        self._enabled_rows = config.enabled_rows()
+        self._disabled_rows = _disabled_rows(config, self._enabled_rows)
+        self._static_scene = config.static_scene(self._static_poses)
         self._world.set_static(*self._static_scene)
         self._world.set_filters(*config.filters())
+        self._scene_version = 0  # counts the changes of the static colliders
         # Parameter changes may come from another thread (Node.set_parameters); ticks run on
         # the executor's. The lock keeps a World change from landing in the middle of a step.
         self._world_lock = threading.Lock()
@@ -111,6 +121,7 @@ class CollisionNode(Node):
                                % (len(NAMES), time.perf_counter() - start))
 
         self._monitor = diagnostics.Monitor(time.monotonic())
+        self._monitor.scene(self._scene_version, config.colliders)
         self._collisions_publisher = self.create_publisher(PointCloud2, 'collisions', OUTPUT_QOS)
         self._markers_publisher = self.create_publisher(MarkerArray, '~/markers', OUTPUT_QOS)
         self._diagnostics_publisher = self.create_publisher(
@@ -129,6 +140,9 @@ class CollisionNode(Node):
         # node of this process would start from them.
         self._subscription = self.create_subscription(
             PoseArray, 'dynamic_poses', self._on_input, copy.copy(INPUT_QOS), raw=True,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self._static_subscription = self.create_subscription(
+            PoseArray, 'static_poses', self._on_static_poses, copy.copy(INPUT_QOS), raw=True,
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.get_logger().info(
             '%d static colliders (%d enabled), broad phase %s, %s, %d thread%s' % (
@@ -233,17 +247,59 @@ class CollisionNode(Node):
             raise InputError('dynamic.half_extents sizes %d bodies, the input has %d poses'
                              % (len(extents), count))
 
+    def _on_static_poses(self, buffer):
+        """Move the static colliders from the next tick on; refuse an invalid message whole."""
+        try:
+            message = parse_pose_array(buffer)
+            poses = np.array(message.poses)  # the node's own copy (the message's is a view)
+            # Checked against the colliders as they are: a parameter change (maybe from
+            # another thread) comes before or after the whole message.
+            with self._world_lock:
+                config = self._config
+                if message.frame_id and message.frame_id != config.frame_id:
+                    raise InputError("frame_id '%s' is not the node's frame_id '%s'"
+                                     % (message.frame_id, config.frame_id))
+                if len(poses) != len(config.colliders):
+                    raise InputError('%d poses for %d static colliders (one per name in '
+                                     'static_colliders, in its order)'
+                                     % (len(poses), len(config.colliders)))
+                rows = self._disabled_rows  # their poses are checked too: they may be enabled
+                set_boxes(Boxes(len(rows)), 0, poses[rows], np.zeros(3))
+                rows = self._enabled_rows
+                self._world.move_static(poses[rows])
+                if not np.array_equal(poses, self._static_poses):
+                    self._scene_version += 1
+                self._static_poses = poses
+                self._static_scene = (poses[rows],) + self._static_scene[1:]
+        except (CdrError, InputError) as error:
+            self._reject('static_poses: %s' % error)
+        except InvalidBox as error:
+            row = int(rows[error.body])
+            self._reject('static_poses: collider %d (%s): %s'
+                         % (row, config.colliders[row].name, error.reason))
+        else:
+            self._monitor.scene(self._scene_version)
+
     def _reject(self, reason):
         self._monitor.rejected(reason)
         self.get_logger().warn('input rejected: %s' % reason,
                                throttle_duration_sec=LOG_THROTTLE_S)
 
     def _on_set_parameters(self, changes):
-        """Apply run-time changes on the next tick; refuse invalid ones with the reason."""
+        """Apply run-time changes on the next tick, all or none; refuse invalid ones with why."""
+        given = {change.name: change.value for change in changes}
+
+        def block_value(name):
+            """Return a new collider's block value: this call's, else as set before, else None."""
+            return given[name] if name in given else self.get_parameter_or(name).value
+
         changed = self._config
         try:
-            for change in changes:
-                changed = params.run_time_change(changed, change.name, change.value)
+            # The list first, so that the other changes find the colliders it adds.
+            for change in sorted(changes, key=lambda change: change.name != 'static_colliders'):
+                changed = params.run_time_change(changed, change.name, change.value,
+                                                 block_value)
+            params.check_run_time(changed)
         except params.ParameterError as error:
             return SetParametersResult(successful=False, reason=str(error))
         old = self._config
@@ -256,17 +312,45 @@ class CollisionNode(Node):
                 return SetParametersResult(successful=False, reason=str(error))
             if changed.sphere_prefilter != old.sphere_prefilter:
                 self._world.sphere_prefilter = changed.sphere_prefilter
-            if changed.colliders is not old.colliders:  # a collider's setting was set
-                self._static_scene = changed.static_scene()
-                self._world.set_static(*self._static_scene)
+            if changed.colliders is not old.colliders:  # a collider or the list was set
+                self._change_scene(old, changed)
             filters = ('dynamic_collision_category', 'dynamic_collision_mask', 'ignored_pairs')
-            if any(getattr(changed, name) != getattr(old, name) for name in filters):
+            if any(getattr(changed, name) != getattr(old, name) for name in filters) \
+                    or _ids(changed) != _ids(old):  # a name in ignored_pairs may have a new id
                 self._world.set_filters(*changed.filters())
             self._world.margin = changed.margin
             self._world.continuous = changed.continuous
             self._world.continuous_tolerance = changed.continuous_tolerance
             self._config = changed
         return SetParametersResult(successful=True)
+
+    def _change_scene(self, old, changed):
+        """Give the World the colliders of ``changed``, in place when only poses or sizes changed.
+
+        Otherwise they are set anew. A collider keeps its current pose (from static_poses)
+        unless its pose parameter was set now.
+        """
+        current = {c.static_id: (c.pose, row) for row, c in enumerate(old.colliders)}
+        poses = np.array([c.pose for c in changed.colliders]).reshape(-1, 7)
+        for row, collider in enumerate(changed.colliders):
+            pose, old_row = current.get(collider.static_id, (None, None))
+            if pose is collider.pose:  # its parameter was not set: where static_poses put it
+                poses[row] = self._static_poses[old_row]
+        scene = changed.static_scene(poses)
+        same = ('name', 'static_id', 'enabled', 'margin', 'collision_category',
+                'collision_mask')
+        if len(old.colliders) == len(changed.colliders) and all(
+                all(getattr(a, key) == getattr(b, key) for key in same)
+                for a, b in zip(old.colliders, changed.colliders)):
+            self._world.move_static(scene[0], scene[1])
+        else:
+            self._world.set_static(*scene)
+        self._static_poses = poses
+        self._enabled_rows = changed.enabled_rows()
+        self._disabled_rows = _disabled_rows(changed, self._enabled_rows)
+        self._static_scene = scene
+        self._scene_version += 1
+        self._monitor.scene(self._scene_version, changed.colliders)
 
     def _publish_diagnostics(self):
         config = self._config
@@ -279,6 +363,16 @@ class CollisionNode(Node):
             values=[KeyValue(key=key, value=value) for key, value in values])
         self._diagnostics_publisher.publish(DiagnosticArray(
             header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+
+
+def _disabled_rows(config, enabled_rows):
+    """Return the list indices of the disabled colliders, int64."""
+    return np.setdiff1d(np.arange(len(config.colliders)), enabled_rows)
+
+
+def _ids(config):
+    """Return each collider's (name, static id)."""
+    return [(c.name, c.static_id) for c in config.colliders]
 
 
 def compile_kernels():

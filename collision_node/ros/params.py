@@ -11,6 +11,7 @@ the parameter and says what is wrong with it.
 """
 import json
 import math
+import os
 import re
 import reprlib
 from typing import NamedTuple
@@ -19,7 +20,8 @@ import numpy as np
 
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.continuous import CONTINUOUS_TOLERANCE
-from collision_node.pipeline.filters import ALL_CATEGORIES, DEFAULT_CATEGORY, MAX_ID
+from collision_node.pipeline.filters import (ALL_CATEGORIES, collision_bits, DEFAULT_CATEGORY,
+                                             MAX_ID)
 from collision_node.pipeline.obb import MAX_COORDINATE, QUATERNION_NORM_TOLERANCE
 from collision_node.pipeline.world import DYNAMIC, STATIC, World
 
@@ -47,6 +49,9 @@ PARAMETERS = {
                                        'ticks an emptied leaf lives before it is dropped', True),
     'dynamic.half_extents': Spec(DOUBLE_ARRAY, [0.5, 0.5, 0.5],
                                  'm; 3 values for every dynamic body, or 3 per body'),
+    'dynamic.half_extents_file': Spec(
+        STRING, '', '.npy file of (N, 3) or (3,) half extents in m; replaces '
+                    'dynamic.half_extents'),
     'dynamic.collision_category': Spec(
         INTEGER_ARRAY, [DEFAULT_CATEGORY], 'bits; one for every dynamic body, or one per body',
         True),
@@ -54,7 +59,10 @@ PARAMETERS = {
         INTEGER_ARRAY, [ALL_CATEGORIES], 'bits (-1: all); one for every dynamic body, or one '
                                          'per body', True),
     'static_colliders': Spec(STRING_ARRAY, [], 'names of the static boxes, each with a block '
-                                               '<name>.pose, <name>.half_extents, <name>.enabled'),
+                                               '<name>.pose, <name>.half_extents, <name>.enabled',
+                             True),
+    'static_scene_file': Spec(STRING, '', '.npz file of named static colliders, listed before '
+                                          'those of static_colliders'),
     'margin': Spec(DOUBLE, 0.0, 'm; pairs whose exact distance is at most this are reported',
                    True),
     'continuous': Spec(BOOL, False, 'check each body over its motion since the previous input, '
@@ -74,8 +82,8 @@ PARAMETERS = {
     'diagnostic_updater.period': Spec(DOUBLE, 1.0, 's between /diagnostics messages'),
 }
 COLLIDER_PARAMETERS = {  # <name>.<key>; pose and half_extents have no default: they must be given
-    'pose': Spec(DOUBLE_ARRAY, None, 'x y z qx qy qz qw, in frame_id'),
-    'half_extents': Spec(DOUBLE_ARRAY, None, 'm, 3 values'),
+    'pose': Spec(DOUBLE_ARRAY, None, 'x y z qx qy qz qw, in frame_id', True),
+    'half_extents': Spec(DOUBLE_ARRAY, None, 'm, 3 values', True),
     'enabled': Spec(BOOL, True, 'a disabled collider is left out of the checks', True),
     'margin': Spec(DOUBLE, 0.0, 'm; added to margin for pairs with this collider', True),
     'collision_category': Spec(INTEGER, DEFAULT_CATEGORY, 'bits', True),
@@ -107,10 +115,16 @@ class ParameterError(ValueError):
     def __init__(self, name, problem):
         super().__init__("parameter '%s': %s" % (name, problem))
         self.name = name
+        self.problem = problem
 
 
 class Collider(NamedTuple):
-    """A static box from the parameters; its id in the `collisions` cloud is its list index."""
+    """A static box from the parameters or the scene file.
+
+    ``static_id`` is its id in the `collisions` cloud: its index in the list at start, the next
+    unused id for a collider added later; it never changes while the collider exists and is
+    never given to another one (README, "The collisions cloud").
+    """
 
     name: str
     pose: np.ndarray          # (7,) x y z qx qy qz qw
@@ -119,6 +133,7 @@ class Collider(NamedTuple):
     margin: float = 0.0
     collision_category: int = DEFAULT_CATEGORY
     collision_mask: int = ALL_CATEGORIES
+    static_id: int = -1
 
 
 class Parameters(NamedTuple):
@@ -142,18 +157,24 @@ class Parameters(NamedTuple):
     max_bodies: int
     threads: int
     diagnostic_period_s: float
+    next_static_id: int = 0  # the id of the next collider added at run time
 
-    def static_scene(self):
+    def enabled_rows(self):
+        """Return the list indices of the enabled colliders, int64."""
+        return np.array([i for i, c in enumerate(self.colliders) if c.enabled], np.int64)
+
+    def static_scene(self, poses=None):
         """World.set_static's arguments for the enabled colliders.
 
-        Poses (S, 7), half extents (S, 3), ids (their list indices), margins, categories and
-        masks (S,).
+        Poses (S, 7), half extents (S, 3), ids (their static_id), margins, categories and
+        masks (S,). ``poses`` (one per collider, list order) replaces their pose parameters.
         """
-        enabled = [c for c in self.colliders if c.enabled]
-        poses = np.array([c.pose for c in enabled]).reshape(-1, POSE_SIZE)
+        rows = self.enabled_rows()
+        enabled = [self.colliders[i] for i in rows]
+        if poses is None:
+            poses = np.array([c.pose for c in self.colliders]).reshape(-1, POSE_SIZE)
         extents = np.array([c.half_extents for c in enabled]).reshape(-1, 3)
-        ids = [i for i, c in enumerate(self.colliders) if c.enabled]
-        return (poses, extents, np.array(ids, dtype=np.int64),
+        return (poses[rows], extents, np.array([c.static_id for c in enabled], np.int64),
                 np.array([c.margin for c in enabled], dtype=np.float64),
                 np.array([c.collision_category for c in enabled], dtype=np.int64),
                 np.array([c.collision_mask for c in enabled], dtype=np.int64))
@@ -161,7 +182,8 @@ class Parameters(NamedTuple):
     def filters(self):
         """World.set_filters's arguments: dynamic categories and masks, ignored pair rows."""
         return (self.dynamic_collision_category, self.dynamic_collision_mask,
-                ignored_pair_rows(self.ignored_pairs, [c.name for c in self.colliders]))
+                ignored_pair_rows(self.ignored_pairs, [c.name for c in self.colliders],
+                                  [c.static_id for c in self.colliders]))
 
 
 def parse(values):
@@ -177,28 +199,25 @@ def parse(values):
             for name, spec in PARAMETERS.items()}
     for name in WORLD_SETTINGS:
         check_world_setting(name, read[name])
-    names = read['static_colliders']
+    colliders = load_static_scene(read['static_scene_file']) if read['static_scene_file'] \
+        else []
+    names = [c.name for c in colliders] + read['static_colliders']
     _check_collider_names(names)
-    colliders = []
-    for name in names:
-        pose, extents, enabled, margin, category, mask = (  # a missing pose or size stays
-            _checked_or_none('%s.%s' % (name, key), spec.value_type,   # None: _pose() says so
-                             get('%s.%s' % (name, key), spec))
-            for key, spec in COLLIDER_PARAMETERS.items())
-        colliders.append(Collider(name, _pose('%s.pose' % name, pose),
-                                  _half_extents('%s.half_extents' % name, extents, single=True),
-                                  enabled, _margin('%s.margin' % name, margin),
-                                  _bits('%s.collision_category' % name, category),
-                                  _bits('%s.collision_mask' % name, mask)))
+    for name in read['static_colliders']:
+        colliders.append(_collider(name, lambda key, spec: get('%s.%s' % (name, key), spec),
+                                   len(colliders)))
     ignored_pair_rows(read['ignored_pairs'], names)  # refuses a malformed entry
+    dynamic_half_extents = _half_extents('dynamic.half_extents', read['dynamic.half_extents'],
+                                         single=False)
+    if read['dynamic.half_extents_file']:
+        dynamic_half_extents = load_half_extents(read['dynamic.half_extents_file'])
     return Parameters(
         frame_id=_frame_id(read['frame_id']),
         broad_phase=read['broad_phase'],
         sphere_prefilter=read['sphere_prefilter'],
         octree_max_depth=read['octree.max_depth'],
         octree_leaf_cooldown_ticks=read['octree.leaf_cooldown_ticks'],
-        dynamic_half_extents=_half_extents('dynamic.half_extents',
-                                           read['dynamic.half_extents'], single=False),
+        dynamic_half_extents=dynamic_half_extents,
         dynamic_collision_category=_bits_list('dynamic.collision_category',
                                               read['dynamic.collision_category']),
         dynamic_collision_mask=_bits_list('dynamic.collision_mask',
@@ -213,7 +232,24 @@ def parse(values):
         max_bodies=_in_range('max_bodies', read['max_bodies'], 1, 2**32 - 1),
         threads=_in_range('threads', read['threads'], 1, MAX_THREADS),
         diagnostic_period_s=_positive('diagnostic_updater.period',
-                                      read['diagnostic_updater.period']))
+                                      read['diagnostic_updater.period']),
+        next_static_id=len(colliders))
+
+
+def _collider(name, value_of, static_id):
+    """Return the Collider ``name`` with id ``static_id``; ``value_of(key, spec)`` reads its block.
+
+    Raises ParameterError naming the first invalid value (a missing pose or size included).
+    """
+    pose, extents, enabled, margin, category, mask = (  # a missing pose or size stays
+        _checked_or_none('%s.%s' % (name, key), spec.value_type,   # None: _pose() says so
+                         value_of(key, spec))
+        for key, spec in COLLIDER_PARAMETERS.items())
+    return Collider(name, _pose('%s.pose' % name, pose),
+                    _half_extents('%s.half_extents' % name, extents, single=True),
+                    enabled, _margin('%s.margin' % name, margin),
+                    _bits('%s.collision_category' % name, category),
+                    _bits('%s.collision_mask' % name, mask), static_id)
 
 
 def check_world_setting(name, value):
@@ -224,29 +260,36 @@ def check_world_setting(name, value):
         raise ParameterError(name, str(error)) from None
 
 
-def run_time_change(parameters, name, value):
+def run_time_change(parameters, name, value, block_value=None):
     """Return ``parameters`` with one run-time parameter changed; ParameterError if refused.
 
-    Only the parameters marked run-time in the table can change: the colliders' list, their
-    geometry and the node's wiring are fixed at start. Names outside the table leave
-    ``parameters`` as they are.
+    Only the parameters marked run-time in the table can change; the node's wiring is fixed at
+    start. A collider's block may be set before its name is in ``static_colliders`` (it is
+    checked, then used when the name is added); a name added to ``static_colliders`` takes its
+    block from ``block_value(parameter name)`` (None: not set). Names of rclpy's own
+    parameters leave ``parameters`` as they are; other unknown names are refused.
     """
     collider, _, key = name.rpartition('.')
-    names = [c.name for c in parameters.colliders]
-    if collider in names and key in COLLIDER_PARAMETERS:
+    if key in COLLIDER_PARAMETERS and collider and name not in PARAMETERS:
         spec = COLLIDER_PARAMETERS[key]
-        if not spec.run_time:
-            raise ParameterError(name, 'fixed at start; only %s can change' % ', '.join(
-                '%s.%s' % (collider, k) for k, s in COLLIDER_PARAMETERS.items() if s.run_time))
         value = _checked(name, spec.value_type, value)
         value = _COLLIDER_CHECKS.get(key, lambda _, v: v)(name, value)
+        names = [c.name for c in parameters.colliders]
+        if collider not in names:  # a block for a collider yet to be added
+            _check_collider_names([collider])
+            return parameters
         index = names.index(collider)
         colliders = list(parameters.colliders)
         colliders[index] = colliders[index]._replace(**{key: value})
         return parameters._replace(colliders=tuple(colliders))
     spec = PARAMETERS.get(name)
-    if spec is None:  # not in the table (use_sim_time, qos_overrides.*): rclpy's business
-        return parameters
+    if spec is None:
+        if name.split('.')[0] in RCLPY_PARAMETER_GROUPS:
+            return parameters  # rclpy's business
+        raise ParameterError(name, 'undeclared: collision_node has no such parameter')
+    if name == 'static_colliders':
+        return _with_colliders(parameters, _checked(name, STRING_ARRAY, value),
+                               block_value or (lambda _: None))
     if not spec.run_time:
         raise ParameterError(name, 'fixed at start; restart the node to change it')
     value = _checked(name, spec.value_type, value)
@@ -254,17 +297,54 @@ def run_time_change(parameters, name, value):
         check_world_setting(name, value)
     value = _RUN_TIME_CHECKS.get(name, lambda _, v: v)(name, value)
     if name == 'ignored_pairs':
-        ignored_pair_rows(value, names)
+        ignored_pair_rows(value, [c.name for c in parameters.colliders])
     field = name.replace('.', '_')
     return parameters._replace(**{field: value})
 
 
-def ignored_pair_rows(entries, collider_names):
+def _with_colliders(parameters, names, block_value):
+    """Return ``parameters`` with the colliders ``names``: kept ones as they are, new ones read.
+
+    A new name takes the next unused id and its block from ``block_value``.
+    """
+    _check_collider_names(names)
+    kept = {c.name: c for c in parameters.colliders}
+    colliders = []
+    next_id = parameters.next_static_id
+    for name in names:
+        if name in kept:
+            colliders.append(kept[name])
+            continue
+
+        def value_of(key, spec, name=name):
+            value = block_value('%s.%s' % (name, key))
+            return spec.default if value is None else value
+        colliders.append(_collider(name, value_of, next_id))
+        next_id += 1
+    return parameters._replace(colliders=tuple(colliders), next_static_id=next_id)
+
+
+def check_run_time(parameters):
+    """Raise ParameterError unless the parameters after a set of run-time changes fit together.
+
+    ``ignored_pairs`` must name colliders that are (still) in ``static_colliders``.
+    """
+    try:
+        ignored_pair_rows(parameters.ignored_pairs, [c.name for c in parameters.colliders])
+    except ParameterError as error:
+        raise ParameterError('static_colliders', '%s (remove it from ignored_pairs in the '
+                                                 'same call)' % error) from None
+
+
+def ignored_pair_rows(entries, collider_names, collider_ids=None):
     """Return ``ignored_pairs`` entries as World rows (id_a, type_a, id_b, type_b).
 
     Each entry is ``"A B"``, A and B each ``d<i>`` (dynamic body i) or a name in
-    ``collider_names`` (its list index is its id). Raises ParameterError naming the entry.
+    ``collider_names``, whose id is the same entry of ``collider_ids`` (default: its list
+    index). Raises ParameterError naming the entry.
     """
+    ids = dict(zip(collider_names, range(len(collider_names)) if collider_ids is None
+                   else collider_ids))
     rows = []
     for entry in entries:
         words = entry.split()
@@ -280,8 +360,8 @@ def ignored_pair_rows(entries, collider_names):
                     raise ParameterError('ignored_pairs', 'entry %r: dynamic index %d must be '
                                                           'in [0, %d]' % (entry, index, MAX_ID))
                 row += [index, DYNAMIC]
-            elif word in collider_names:
-                row += [collider_names.index(word), STATIC]
+            elif word in ids:
+                row += [ids[word], STATIC]
             else:
                 raise ParameterError('ignored_pairs', 'entry %r: %r is neither d<i> nor a name '
                                                       'in static_colliders' % (entry, word))
@@ -339,7 +419,11 @@ def declare(node):
         node.get_logger().warn(
             'ignored %d parameter(s) collision_node does not have (a typo, or a collider '
             'missing from static_colliders?): %s' % (len(unknown), reprlib.repr(unknown)))
-    return parse(values)
+    parsed = parse(values)
+    if len(parsed.colliders) > len(names):  # the scene file's come first: list them all
+        node.set_parameters([Parameter('static_colliders',
+                                       value=[c.name for c in parsed.colliders])])
+    return parsed
 
 
 def unknown_parameters(given, collider_names):
@@ -367,6 +451,25 @@ def scene_parameters(static_poses, static_half_extents, dynamic_half_extents, **
                                    np.asarray(static_half_extents, np.float64).tolist()):
         values[name + '.pose'], values[name + '.half_extents'] = pose, extents
     return values
+
+
+def write_scene_files(directory, static_poses, static_half_extents, dynamic_half_extents,
+                      names=None):
+    """Write a scene as ``static_scene_file`` and ``dynamic.half_extents_file``; return them.
+
+    The files go to ``directory`` (scene.npz, dynamic_half_extents.npy); the static boxes are
+    named ``s0``, ``s1``, ... unless ``names`` are given. Returns the two parameters (name ->
+    path), for :func:`write_params_file` with the scene's other parameters.
+    """
+    scene = os.path.join(directory, 'scene.npz')
+    sizes = os.path.join(directory, 'dynamic_half_extents.npy')
+    count = len(static_poses)
+    np.savez(scene, names=np.array(names if names is not None
+                                   else ['s%d' % i for i in range(count)], dtype=str),
+             poses=np.asarray(static_poses, np.float64).reshape(count, POSE_SIZE),
+             half_extents=np.asarray(static_half_extents, np.float64).reshape(count, 3))
+    np.save(sizes, np.asarray(dynamic_half_extents, np.float64))
+    return {'static_scene_file': scene, 'dynamic.half_extents_file': sizes}
 
 
 def write_params_file(path, values, node_name='collision_node'):
@@ -443,7 +546,9 @@ def _bits_list(name, values):
 _RUN_TIME_CHECKS = {'margin': _margin, 'continuous_tolerance': _tolerance,
                     'dynamic.collision_category': _bits_list,
                     'dynamic.collision_mask': _bits_list}
-_COLLIDER_CHECKS = {'margin': _margin, 'collision_category': _bits, 'collision_mask': _bits}
+_COLLIDER_CHECKS = {'margin': _margin, 'collision_category': _bits, 'collision_mask': _bits,
+                    'pose': lambda name, value: _pose(name, value),
+                    'half_extents': lambda name, value: _half_extents(name, value, single=True)}
 
 
 def _checked_or_none(name, type_name, value):
@@ -496,12 +601,118 @@ def _half_extents(name, values, single):
         raise ParameterError(name, 'needs 3 values (one size for all dynamic bodies) or 3 per '
                                    'body, got %d' % len(values))
     extents = np.array(values, dtype=np.float64)
-    bad = np.flatnonzero(~(np.isfinite(extents) & (extents >= 0.0)
-                           & (extents <= MAX_COORDINATE)))
+    return _checked_half_extents(name, extents if len(extents) == 3 else extents.reshape(-1, 3))
+
+
+def _checked_half_extents(name, extents):
+    """Return ``extents`` if every value is finite, >= 0 and <= MAX_COORDINATE."""
+    flat = extents.ravel()
+    bad = np.flatnonzero(~(np.isfinite(flat) & (flat >= 0.0) & (flat <= MAX_COORDINATE)))
     if len(bad):
         raise ParameterError(name, 'value %d is %r; half extents must be finite, >= 0 and <= %g'
-                             % (bad[0], values[bad[0]], MAX_COORDINATE))
-    return extents if len(extents) == 3 else extents.reshape(-1, 3)
+                             % (bad[0], float(flat[bad[0]]), MAX_COORDINATE))
+    return extents
+
+
+def load_half_extents(path):
+    """Read ``dynamic.half_extents_file``: a .npy array of shape (N, 3) or (3,), in metres.
+
+    Returns it as float64 ((3,) for one size for all); raises ParameterError naming the
+    parameter and what is wrong.
+    """
+    name = 'dynamic.half_extents_file'
+    extents = _load(name, path)
+    if extents.dtype.kind not in 'fiu' or extents.shape != (3,) and (
+            extents.ndim != 2 or extents.shape[1] != 3 or not len(extents)):
+        raise ParameterError(name, "'%s' must hold a float array of shape (N, 3) or (3,) "
+                                   '(half extents in m), got %s of shape %s'
+                             % (path, extents.dtype, extents.shape))
+    return _checked_half_extents(name, extents.astype(np.float64))
+
+
+SCENE_ARRAYS = {  # key in the .npz file: (dtype kinds, shape after N, required, default)
+    'names': ('U', (), True, None),
+    'poses': ('fiu', (POSE_SIZE,), True, None),
+    'half_extents': ('fiu', (3,), True, None),
+    'enabled': ('b', (), False, True),
+    'margins': ('fiu', (), False, 0.0),
+    'collision_categories': ('iu', (), False, DEFAULT_CATEGORY),
+    'collision_masks': ('iu', (), False, ALL_CATEGORIES),
+}
+
+
+def load_static_scene(path):
+    """Read ``static_scene_file``: named static colliders in a .npz file (numpy.savez).
+
+    Arrays, N colliders: ``names`` (N,) str, ``poses`` (N, 7) x y z qx qy qz qw in frame_id,
+    ``half_extents`` (N, 3) in m; optional ``enabled`` (N,) bool, ``margins`` (N,) m,
+    ``collision_categories`` and ``collision_masks`` (N,) int64. Returns their Colliders, ids
+    0..N-1; raises ParameterError naming the parameter, the array and the first bad collider.
+    """
+    name = 'static_scene_file'
+    with _load(name, path) as archive:
+        unknown = sorted(set(archive.files) - set(SCENE_ARRAYS))
+        if unknown:
+            raise ParameterError(name, "'%s' has arrays %s; known: %s"
+                                 % (path, unknown, ', '.join(SCENE_ARRAYS)))
+        arrays = {}
+        for key, (kinds, shape, required, default) in SCENE_ARRAYS.items():
+            if key not in archive.files:
+                if required:
+                    raise ParameterError(name, "'%s' has no array '%s'" % (path, key))
+                continue
+            array = archive[key]
+            count = len(arrays['names']) if arrays else len(array)
+            if array.dtype.kind not in kinds or array.shape != (count,) + shape:
+                raise ParameterError(name, "'%s': %s must be %s of shape %s, got %s of shape %s"
+                                     % (path, key, _KIND_NAMES[kinds[0]], (count,) + shape,
+                                        array.dtype, array.shape))
+            arrays[key] = array
+    names = arrays['names'].tolist()
+
+    def check(what, check_value, *args):
+        """Return ``check_value(what, *args)``, its ParameterError as one of this parameter."""
+        try:
+            return check_value(what, *args)
+        except ParameterError as error:
+            raise ParameterError(name, "'%s': %s: %s" % (path, error.name, error.problem)) \
+                from None
+
+    check('names', lambda _, values: _check_collider_names(values), names)
+    poses = arrays['poses'].astype(np.float64)
+    for i, pose in enumerate(poses):
+        if not _valid_pose(pose):  # then _pose says why
+            check('%s (row %d) pose' % (names[i], i), _pose, pose)
+    extents = check('half_extents', _checked_half_extents,
+                    arrays['half_extents'].astype(np.float64))
+    count = len(names)
+    enabled = arrays.get('enabled', np.ones(count, np.bool_))
+    margins = arrays.get('margins', np.zeros(count)).astype(np.float64)
+    for i, margin in enumerate(margins):
+        check('%s (row %d) margin' % (names[i], i), _margin, margin)
+    bits = {key: collision_bits(key, arrays.get(key, default))
+            for key, default in (('collision_categories', DEFAULT_CATEGORY),
+                                 ('collision_masks', ALL_CATEGORIES))}
+    categories = np.broadcast_to(bits['collision_categories'], (count,))
+    masks = np.broadcast_to(bits['collision_masks'], (count,))
+    return [Collider(names[i], poses[i], extents[i], bool(enabled[i]), float(margins[i]),
+                     int(categories[i]), int(masks[i]), i) for i in range(count)]
+
+
+_KIND_NAMES = {'U': 'strings', 'f': 'numbers', 'i': 'integers', 'b': 'booleans'}
+
+
+def _load(name, path):
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as error:  # missing, unreadable, not numpy, pickled
+        raise ParameterError(name, "cannot read '%s': %s" % (path, error)) from None
+
+
+def _valid_pose(pose):
+    norm = math.sqrt(float(np.dot(pose[3:], pose[3:])))
+    return bool(np.all(np.isfinite(pose)) and np.max(np.abs(pose[:3])) <= MAX_COORDINATE
+                and abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE)
 
 
 def _check_collider_names(names):

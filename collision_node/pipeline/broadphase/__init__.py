@@ -10,6 +10,12 @@ holds:
 ``set_static(boxes, n_static)``
     Called once per static scene. Static boxes are rows ``[0, n_static)`` of ``boxes``
     (an :class:`collision_node.pipeline.obb.Boxes`); a phase builds what depends on them here.
+``move_static(boxes, rows) -> kept``
+    Called when static ``rows`` (int64) changed in ``boxes`` (moved or resized) since the
+    last set_static or move_static. ``kept`` (bool per row) says which of them the phase's
+    static structure now holds as they are; the World pairs the others itself until it calls
+    set_static again (:meth:`~collision_node.pipeline.world.World.move_static`). A phase that
+    cannot tell returns False: never a structure that is silently stale.
 ``find_pairs(boxes, n_static, n_dynamic, moved=None) -> (pairs, compared)``
     Called every tick; dynamic boxes are rows ``[n_static, n_static + n_dynamic)``.
     ``moved`` (bool per dynamic row, or None: all) says which dynamic boxes changed since the

@@ -17,6 +17,8 @@ the structures of the phase left, e.g. the grid's static table). The first tick,
 beyond a threshold by ``URGENT_MARGIN`` (100,000 bodies arriving while brute force runs: one
 such tick takes seconds), switch at once.
 """
+import numpy as np
+
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase import make_broad_phase
 from collision_node.pipeline.broadphase.brute_force import BruteForce
@@ -52,6 +54,12 @@ class Auto:
         self._static = (boxes, n_static)
         for phase in self._phases.values():
             phase.set_static(boxes, n_static)
+
+    def move_static(self, boxes, rows):
+        kept = np.ones(len(rows), np.bool_)
+        for phase in self._phases.values():  # a phase made later is built as the boxes are
+            kept &= phase.move_static(boxes, rows)
+        return kept
 
     def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         wanted = self._choose(boxes.aabbs, n_static, n_dynamic, MARGIN)

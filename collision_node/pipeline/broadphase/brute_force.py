@@ -3,6 +3,8 @@
 The baseline of both seed papers, O(D·S + D²/2) comparisons. The comparison is an AABB
 overlap test; the ``sphere`` phase runs the same loop with the bounding-sphere test.
 """
+import numpy as np
+
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase.pair_buffer import emit, PairBuffer
 from collision_node.pipeline.obb import overlap_across, spheres_apart
@@ -22,6 +24,9 @@ class BruteForce:
 
     def set_static(self, boxes, n_static):
         pass  # nothing to build: every tick compares against all static boxes
+
+    def move_static(self, boxes, rows):
+        return np.ones(len(rows), np.bool_)  # nothing built: every tick reads the boxes
 
     def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         return self._buffer.fill(_all_pairs, boxes.aabbs, boxes.centers, boxes.radii,

@@ -113,6 +113,29 @@ def cell_range(lattice, aabbs, row, ranges, slot):
 
 
 @kernel
+def keeps_cells(lattice, aabbs, rows, ranges, slot_of_row, copies, kept):
+    """Set ``kept[i]`` where box ``rows[i]`` still has the cell range of its slot in ``ranges``.
+
+    A static box that moved within its cells is where a cell structure entered it: only its
+    AABB changed, which the pair tests read, or which is copied to the structure's own
+    ``copies`` (same slots; pass an empty array when there are none). The slot of row r is
+    ``slot_of_row[r]``.
+    """
+    scratch = np.empty((1, 2, 3), np.int64)
+    for i in range(len(rows)):
+        row = rows[i]
+        slot = slot_of_row[row]
+        cell_range(lattice, aabbs, row, scratch, 0)
+        same = True
+        for end in range(2):
+            for k in range(3):
+                same &= scratch[0, end, k] == ranges[slot, end, k]
+        kept[i] = same
+        if same and len(copies):
+            copies[slot] = aabbs[row]
+
+
+@kernel
 def cell_key(x, y, z):
     """One int64 for a cell; distinct cells of one lattice get distinct keys."""
     return ((x + KEY_OFFSET) << (2 * KEY_BITS)) | ((y + KEY_OFFSET) << KEY_BITS) \

@@ -36,7 +36,8 @@ from collision_node.pipeline.broadphase.cell_table import (
     AUTO_SHIFT, bucket_start, BUCKETS_PER_ENTRY, build_table, empty_table,
     shift_for, spatial_order)
 from collision_node.pipeline.broadphase.cells import (
-    ALL_FIRST, make_lattice, mean_side_and_center, pairs_with_all_dynamic, pairs_with_all_static)
+    ALL_FIRST, keeps_cells, make_lattice, mean_side_and_center, pairs_with_all_dynamic,
+    pairs_with_all_static)
 from collision_node.pipeline.broadphase.pair_buffer import emit, emit_if, PairBuffer
 from collision_node.pipeline.obb import overlap_across
 from collision_node.pipeline.workers import Workers
@@ -71,6 +72,8 @@ class Grid:
         self._static = empty_table()
         self._static_lattice = None   # None: static table to be built at the next tick
         self._static_side = 0.0       # the cell side the static table was built with
+        self._static_slots = np.zeros(0, np.int64)  # slot of each static row in the table
+        self._static_reuse = None  # (spatial order, shift) of a table built for these boxes
         self._static_mean_side = 0.0
         self._order = np.zeros(0, np.int64)  # dynamic rows, neighbours together
         self._order_of = (0, 0)  # (n_static, n_dynamic) the order was made for
@@ -79,7 +82,21 @@ class Grid:
 
     def set_static(self, boxes, n_static):
         self._static_mean_side = mean_side_and_center(boxes.aabbs, 0, n_static)[0]
+        # As many boxes as the table holds (the World rebuilds it after static boxes moved):
+        # its spatial order and bucket count serve again, one build instead of two. Any order
+        # and count are correct; these are fast when the boxes are the same, moved a little.
+        self._static_reuse = None
+        if self._static_lattice is not None and len(self._static_slots) == n_static:
+            self._static_reuse = (self._static.rows[:n_static].copy(), self._static.sizes[3])
         self._static_lattice = None  # built at the next tick, when dynamic sizes are known
+
+    def move_static(self, boxes, rows):
+        """Keep the static boxes that stayed in their cells: refresh the table's AABB copies."""
+        kept = np.ones(len(rows), np.bool_)
+        if self._static_lattice is not None:  # else it is built from the boxes as they are
+            keeps_cells(self._static_lattice, boxes.aabbs, rows, self._static.ranges,
+                        self._static_slots, self._static.aabbs, kept)
+        return kept
 
     def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         aabbs = boxes.aabbs
@@ -140,14 +157,20 @@ class Grid:
         """
         self._static_side = side
         self._static_lattice = make_lattice(mean_side_and_center(aabbs, 0, n_static)[1], side)
-        rows = np.arange(n_static)
-        self._static = build_table(self._static, self._static_lattice, aabbs, rows, n_static,
-                                   0)
-        shift = min(self._static.sizes[3], shift_for(BUCKETS_PER_ENTRY * dynamic_entries))
-        # Built again in spatial order, so that the slots of neighbours are neighbours.
-        spatial_order(self._static, rows)
+        if self._static_reuse is not None and not dynamic_entries:
+            rows, shift = self._static_reuse
+        else:
+            rows = np.arange(n_static)
+            self._static = build_table(self._static, self._static_lattice, aabbs, rows,
+                                       n_static, 0)
+            shift = min(self._static.sizes[3], shift_for(BUCKETS_PER_ENTRY * dynamic_entries))
+            # Built again in spatial order, so that the slots of neighbours are neighbours.
+            spatial_order(self._static, rows)
+        self._static_reuse = None
         self._static = build_table(self._static, self._static_lattice, aabbs, rows, n_static,
                                    0, shift)
+        self._static_slots = np.empty(n_static, np.int64)
+        self._static_slots[self._static.rows[:n_static]] = np.arange(n_static)
         self.stats['static_builds'] += 1
 
 

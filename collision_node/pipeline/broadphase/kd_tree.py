@@ -80,12 +80,22 @@ class KdTreePhase:
         self._dynamic = None
         self._dynamic_of = None  # (n_static, n_dynamic) the dynamic tree was made for
         self._built_area = 0.0
+        self._static_built_area = 0.0
         self._stack = np.zeros(STACK_SIZE, np.int64)
         self.stats = {'builds': 0, 'refits': 0}
 
     def set_static(self, boxes, n_static):
         self._static = tree_for(np.arange(n_static))
         build(self._static, boxes.aabbs)
+        self._static_built_area = self._static.area[0]
+
+    def move_static(self, boxes, rows):
+        """Refit the static tree to the moved boxes (O(S)); rebuild it once it degraded."""
+        refit(self._static, boxes.aabbs)
+        if self._static.area[0] > self._rebuild_ratio * self._static_built_area:
+            build(self._static, boxes.aabbs)
+            self._static_built_area = self._static.area[0]
+        return np.ones(len(rows), np.bool_)
 
     def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         aabbs = boxes.aabbs

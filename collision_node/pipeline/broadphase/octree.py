@@ -59,12 +59,13 @@ import numpy as np
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase import hash_map
 from collision_node.pipeline.broadphase.cells import (
-    ALL_FIRST, cell_key, cell_range, first_cell_flags, make_lattice, MAX_CELLS_PER_BODY,
-    mean_side_and_center, pairs_with_all_dynamic, pairs_with_all_static)
+    ALL_FIRST, cell_key, cell_range, first_cell_flags, keeps_cells, make_lattice,
+    MAX_CELLS_PER_BODY, mean_side_and_center, pairs_with_all_dynamic, pairs_with_all_static)
 from collision_node.pipeline.broadphase.pair_buffer import emit, emit_if, PairBuffer
 from collision_node.pipeline.obb import aabbs_overlap, overlap_across
 
 NULL = -1  # no leaf, no entry
+NO_COPIES = np.zeros((0, 2, 3))  # keeps_cells: the octree reads the boxes' own AABBs
 
 # Paper 001's depth rule L = min(PAPER_MAX_DEPTH, log2(n) - PAPER_DEPTH_OFFSET).
 PAPER_MAX_DEPTH = 6
@@ -200,6 +201,14 @@ class Octree:
 
     def set_static(self, boxes, n_static):
         self._state = None  # static boxes are inserted once, at the next build
+
+    def move_static(self, boxes, rows):
+        """Keep the static boxes that stayed in their leaves (the pair tests read the boxes)."""
+        kept = np.ones(len(rows), np.bool_)
+        if self._state is not None:  # else they are inserted as they are at the next build
+            keeps_cells(self._lattice, boxes.aabbs, rows, self._state.static_range,
+                        np.arange(len(self._state.static_range)), NO_COPIES, kept)
+        return kept
 
     def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         aabbs = boxes.aabbs

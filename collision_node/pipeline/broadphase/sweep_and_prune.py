@@ -50,10 +50,26 @@ class SweepAndPrune:
 
     def set_static(self, boxes, n_static):
         aabbs = boxes.aabbs[:n_static]
-        centers = aabbs[:, 0] + aabbs[:, 1]  # twice the centre: only ratios matter
-        self._static_moments = np.stack([centers.sum(axis=0), (centers ** 2).sum(axis=0)])
         self._static_orders = np.stack([np.argsort(aabbs[:, 0, k], kind='stable')
                                         for k in range(3)])
+        self._copy_static(aabbs)
+
+    def move_static(self, boxes, rows):
+        """Sort the static lists again from their last order (nearly sorted) and copy them."""
+        aabbs = boxes.aabbs
+        count = self._static_orders.shape[1]
+        keys = np.empty(count)
+        for k in range(3):
+            if not _insertion_sort(aabbs, k, self._static_orders[k], keys,
+                                   MAX_SWAPS_PER_BODY * count):
+                _full_sort(aabbs, k, self._static_orders[k], keys)
+        self._copy_static(aabbs[:count])
+        return np.ones(len(rows), np.bool_)
+
+    def _copy_static(self, aabbs):
+        """Copy the static AABBs in the order of each axis; their centres' moments."""
+        centers = aabbs[:, 0] + aabbs[:, 1]  # twice the centre: only ratios matter
+        self._static_moments = np.stack([centers.sum(axis=0), (centers ** 2).sum(axis=0)])
         self._static_sorted = np.ascontiguousarray(aabbs[self._static_orders])
 
     def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
