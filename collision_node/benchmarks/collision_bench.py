@@ -423,7 +423,8 @@ class Bench:
                 if categories is not None:
                     world.set_filters(categories=categories, masks=categories)
                 worlds.append(world)
-            samples = _in_rounds(scene, ticks, [(world, DT) for world in worlds])
+            samples = _in_rounds(ticks, [(_scene_inputs(scene, DT), world.step)
+                                         for world in worlds])
             for (label, options, _), times in zip(configurations, samples):
                 stats = [s for _, s in times]
                 rows.append({
@@ -459,7 +460,8 @@ class Bench:
                     world = World(broad_phase=DEFAULT_PHASE, continuous=continuous)
                     world.set_static(scene.static_poses, scene.static_half_extents)
                     worlds.append(world)
-                samples = _in_rounds(scene, ticks, [(world, 1.0 / rate) for world in worlds])
+                samples = _in_rounds(ticks, [(_scene_inputs(scene, 1.0 / rate), world.step)
+                                             for world in worlds])
                 for world, times in zip(worlds, samples):
                     stats = [s for _, s in times[1:]]  # the first tick has no motion yet
                     rows.append({
@@ -510,35 +512,27 @@ class Bench:
                 ('all bodies dynamic', lambda tick: np.arange(statics), STATIC_MOVE_M)]
             all_extents = np.concatenate([scene.static_half_extents,
                                           scene.dynamic_half_extents])
-            worlds = []
-            for label, _, _ in configurations:
+            worlds, runs = [], []
+            for label, moving, amplitude in configurations:
                 world = World(broad_phase=DEFAULT_PHASE)
-                if label != 'all bodies dynamic':
-                    world.set_static(scene.static_poses, scene.static_half_extents)
                 worlds.append(world)
-            samples = [[] for _ in configurations]
-            per_round = max(1, ticks // MARGIN_ROUNDS)
-            for first in range(0, per_round * MARGIN_ROUNDS, per_round):
-                for world, (label, moving, amplitude), times in zip(worlds, configurations,
-                                                                    samples):
-                    for tick in range(first, first + per_round):
-                        poses = scene.dynamic_poses(tick * DT)
-                        static_poses = None
-                        if moving is not None:
-                            static_poses = scene.static_poses.copy()
-                            rows_moved = moving(tick)
-                            static_poses[rows_moved, 0] += amplitude * np.sin(
-                                0.3 * tick + rows_moved)
-                        if label == 'all bodies dynamic':
-                            poses = np.concatenate([static_poses, poses])
-                        before = time.perf_counter()
-                        if label == 'all bodies dynamic':
-                            result = world.step(poses, all_extents)
-                        else:
-                            if static_poses is not None:
-                                world.move_static(static_poses)
-                            result = world.step(poses, scene.dynamic_half_extents)
-                        times.append((1e3 * (time.perf_counter() - before), result.stats))
+                if label == 'all bodies dynamic':
+                    def inputs(k, moving=moving, amplitude=amplitude):
+                        moved = _moved_statics(scene, moving(k), amplitude, k)
+                        return (np.concatenate([moved, scene.dynamic_poses(k * DT)]),
+                                all_extents)
+                    runs.append((inputs, world.step))
+                    continue
+                world.set_static(scene.static_poses, scene.static_half_extents)
+                if moving is None:
+                    runs.append((_scene_inputs(scene, DT), world.step))
+                    continue
+
+                def inputs(k, moving=moving, amplitude=amplitude):
+                    return (_moved_statics(scene, moving(k), amplitude, k),
+                            scene.dynamic_poses(k * DT), scene.dynamic_half_extents)
+                runs.append((inputs, _move_static_and_step(world)))
+            samples = _in_rounds(ticks, runs)
             for (label, _, _), times in zip(configurations, samples):
                 rows.append({
                     'scene': 'uniform', 'bodies': bodies, 'static_bodies': statics,
@@ -568,22 +562,44 @@ class Bench:
                    key=lambda row: row['median_ms'])['broad_phase']
 
 
-def _in_rounds(scene, ticks, worlds):
-    """Step each (world, dt) through ``ticks`` inputs of ``scene``, ``dt`` apart, in turns.
+def _in_rounds(ticks, runs):
+    """Time ``ticks`` ticks of each (inputs, tick) in ``runs``, the runs taking turns.
 
-    The worlds take turns in MARGIN_ROUNDS rounds of a few ticks each, so that a slow minute
-    of the machine hits them all alike. Returns per world its [(ms, stats)] in tick order.
+    ``inputs(k)`` returns the arguments of tick k (untimed), ``tick(*arguments)`` is timed and
+    returns the World's Result. The runs take turns in MARGIN_ROUNDS rounds of a few ticks
+    each, so that a slow minute of the machine hits them all alike. Returns per run its
+    [(ms, stats)] in tick order.
     """
-    samples = [[] for _ in worlds]
+    samples = [[] for _ in runs]
     per_round = max(1, ticks // MARGIN_ROUNDS)
     for first in range(0, per_round * MARGIN_ROUNDS, per_round):
-        for (world, dt), times in zip(worlds, samples):
-            for tick in range(first, first + per_round):
-                poses = scene.dynamic_poses(tick * dt)
+        for (inputs, tick), times in zip(runs, samples):
+            for k in range(first, first + per_round):
+                arguments = inputs(k)
                 before = time.perf_counter()
-                result = world.step(poses, scene.dynamic_half_extents)
+                result = tick(*arguments)
                 times.append((1e3 * (time.perf_counter() - before), result.stats))
     return samples
+
+
+def _scene_inputs(scene, dt):
+    """Return the inputs of World.step at tick k: the scene's poses at k·dt and its sizes."""
+    return lambda k: (scene.dynamic_poses(k * dt), scene.dynamic_half_extents)
+
+
+def _moved_statics(scene, rows, amplitude, k):
+    """Return the scene's static poses with ``rows`` moved along x at tick k (a sine each)."""
+    poses = scene.static_poses.copy()
+    poses[rows, 0] += amplitude * np.sin(0.3 * k + rows)
+    return poses
+
+
+def _move_static_and_step(world):
+    """Return a tick that moves ``world``'s static boxes, then steps it."""
+    def tick(static_poses, poses, half_extents):
+        world.move_static(static_poses)
+        return world.step(poses, half_extents)
+    return tick
 
 
 def reproduce_command(args):
