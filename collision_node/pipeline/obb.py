@@ -164,18 +164,20 @@ def _write_boxes(poses, half_extents, start, rows, centers, rotations, extents, 
 
 
 @kernel
-def pad_bounds(aabbs, radii, margins, start, stop, pad):
-    """Grow the AABB and bounding radius of rows [start, stop) by ``pad`` + the row's margin.
+def pad_bounds(aabbs, radii, margins, rows, first, pad):
+    """Grow the AABB and bounding radius of rows ``first + rows[k]`` by ``pad`` + its margin.
 
     Boxes within distance m of each other have AABBs within m of each other on every axis
     (and bounding spheres within m): padding both boxes of a pair by half its margin lets the
-    broad phase and the sphere test keep every pair the margin may report.
+    broad phase and the sphere test keep every pair the margin may report. ``rows`` may be
+    any subset (moved static boxes) or a permutation (all the dynamic rows, no range built).
     """
-    for row in range(start, stop):
+    for k in range(len(rows)):
+        row = first + rows[k]
         grow = pad + margins[row]
-        for k in range(3):
-            aabbs[row, 0, k] -= grow
-            aabbs[row, 1, k] += grow
+        for m in range(3):
+            aabbs[row, 0, m] -= grow
+            aabbs[row, 1, m] += grow
         radii[row] += grow
 
 

@@ -231,13 +231,14 @@ class World:
         # Written into new storage so that an invalid box leaves the world as it was.
         boxes = Boxes(count + self._boxes.capacity)
         order = _z_order(poses[:, :3])  # static rows in spatial order too
+        rows = _inverse(order)
         try:
-            set_boxes(boxes, 0, poses, half_extents, _inverse(order))
+            set_boxes(boxes, 0, poses, half_extents, rows)
         except ValueError as error:
             raise ValueError('static %s' % error) from None
         boxes.margins[:count] = margins[order]
         if self._margin > 0.0 or np.any(margins > 0.0):  # padding with 0 changes no bit
-            pad_bounds(boxes.aabbs, boxes.radii, boxes.margins, 0, count, self._margin / 2)
+            pad_bounds(boxes.aabbs, boxes.radii, boxes.margins, rows, 0, self._margin / 2)
         self._static = _StaticInput(
             poses.copy(), np.broadcast_to(np.asarray(half_extents, np.float64), (count, 3)).copy(),
             ids, margins, categories, masks)
@@ -245,7 +246,7 @@ class World:
         self._static_margins = bool(np.any(margins > 0.0))
         self._n_static = count
         self._static_ids = ids[order]
-        self._static_rows = _inverse(order)
+        self._static_rows = rows
         self._static_categories = categories[order]
         self._static_masks = masks[order]
         self._loose = np.zeros(max(count, 1), np.bool_)
@@ -307,11 +308,8 @@ class World:
     def _pad_static_rows(self, rows):
         """Grow the bounds of static ``rows`` by half the margin and their own, as set_static."""
         if self._margin > 0.0 or self._static_margins:
-            # pad_bounds' arithmetic (the same bits) on scattered rows.
-            grow = self._margin / 2 + self._boxes.margins[rows]
-            self._boxes.aabbs[rows, 0] -= grow[:, None]
-            self._boxes.aabbs[rows, 1] += grow[:, None]
-            self._boxes.radii[rows] += grow
+            pad_bounds(self._boxes.aabbs, self._boxes.radii, self._boxes.margins, rows, 0,
+                       self._margin / 2)
 
     def set_filters(self, categories=DEFAULT_CATEGORY, masks=ALL_CATEGORIES, ignored_pairs=()):
         """Set the dynamic bodies' collision bits and the pairs never to check.
@@ -369,8 +367,8 @@ class World:
         if mode == SWEPT:
             self._sweep_bounds(poses, half_extents)
         if self._margin > 0.0:
-            pad_bounds(self._boxes.aabbs, self._boxes.radii, self._boxes.margins, n_static,
-                       n_static + n_dynamic, self._margin / 2)
+            pad_bounds(self._boxes.aabbs, self._boxes.radii, self._boxes.margins,
+                       self._dynamic_rows, n_static, self._margin / 2)
         prepared = time.perf_counter()
 
         stats = {'broad_phase': self._phase.name, 'dynamic_bodies': n_dynamic,
