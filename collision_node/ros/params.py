@@ -679,17 +679,22 @@ def load_static_scene(path):
                 from None
 
     check('names', lambda _, values: _check_collider_names(values), names)
+    # Whole arrays checked at once (10,000 rows and more); the first bad row is then checked
+    # alone by the YAML parameter's own check, which says why.
     poses = arrays['poses'].astype(np.float64)
-    for i, pose in enumerate(poses):
-        if not _valid_pose(pose):  # then _pose says why
-            check('%s (row %d) pose' % (names[i], i), _pose, pose)
+    with np.errstate(invalid='ignore', over='ignore'):
+        norms = np.linalg.norm(poses[:, 3:], axis=1)
+        bad = ~(np.isfinite(poses).all(axis=1) & (np.abs(poses[:, :3]) <= MAX_COORDINATE).all(
+            axis=1) & (np.abs(norms - 1.0) <= QUATERNION_NORM_TOLERANCE))
+    for i in np.flatnonzero(bad)[:1]:
+        check('%s (row %d) pose' % (names[i], i), _pose, poses[i])
     extents = check('half_extents', _checked_half_extents,
                     arrays['half_extents'].astype(np.float64))
     count = len(names)
     enabled = arrays.get('enabled', np.ones(count, np.bool_))
     margins = arrays.get('margins', np.zeros(count)).astype(np.float64)
-    for i, margin in enumerate(margins):
-        check('%s (row %d) margin' % (names[i], i), _margin, margin)
+    for i in np.flatnonzero(~((margins >= 0.0) & (margins <= MAX_COORDINATE)))[:1]:
+        check('%s (row %d) margin' % (names[i], i), _margin, margins[i])
     bits = {key: collision_bits(key, arrays.get(key, default))
             for key, default in (('collision_categories', DEFAULT_CATEGORY),
                                  ('collision_masks', ALL_CATEGORIES))}
@@ -707,12 +712,6 @@ def _load(name, path):
         return np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as error:  # missing, unreadable, not numpy, pickled
         raise ParameterError(name, "cannot read '%s': %s" % (path, error)) from None
-
-
-def _valid_pose(pose):
-    norm = math.sqrt(float(np.dot(pose[3:], pose[3:])))
-    return bool(np.all(np.isfinite(pose)) and np.max(np.abs(pose[:3])) <= MAX_COORDINATE
-                and abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE)
 
 
 def _check_collider_names(names):
