@@ -11,16 +11,20 @@ def test_export_writes_the_commits_package(tmp_path):
     assert 'class World' in world.read_text()
 
 
-def test_child_times_each_size_in_the_given_tree():
-    medians = against_commit.run_child(str(against_commit.REPO), [(20, 3), (40, 3)])
-    assert set(medians) == {'20', '40'}
-    assert all(0.0 < ms < 1e4 for ms in medians.values())
+def test_child_times_each_case_and_its_stages_in_the_given_tree():
+    cases = ['uniform:20', 'low_motion:40', 'flying_out:30', 'teleport:20', 'count:20']
+    medians = against_commit.run_child(str(against_commit.REPO), [(c, 3) for c in cases])
+    assert set(medians) == set(cases)
+    for row in medians.values():
+        assert set(row) == {'tick', 'prepare_ms', 'broad_ms', 'narrow_ms'}
+        assert 0.0 < row['tick'] < 1e4
+        assert all(0.0 <= row[stage] < 1e4 for stage in ('prepare_ms', 'broad_ms', 'narrow_ms'))
 
 
 def test_summary_is_this_over_base_per_round():
-    rounds = [{'base': {'10': 2.0}, 'this': {'10': 1.0}},
-              {'this': {'10': 3.0}, 'base': {'10': 2.0}}]
-    assert against_commit.summary(rounds, [10]) == {10: [0.5, 1.5]}
+    rounds = [{'base': {'u:10': {'tick': 2.0}}, 'this': {'u:10': {'tick': 1.0}}},
+              {'this': {'u:10': {'tick': 3.0}}, 'base': {'u:10': {'tick': 2.0}}}]
+    assert against_commit.summary(rounds, ['u:10']) == {'u:10': [0.5, 1.5]}
 
 
 def test_ticks_fill_the_budget_but_never_fewer_than_twenty():

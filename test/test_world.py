@@ -273,3 +273,26 @@ def test_unknown_settings_are_refused_with_the_choices():
     with pytest.raises(ValueError, match='depth'):
         world.configure(octree_max_depth=-1)
     assert world.broad_phase == 'brute_force'
+
+
+def test_a_refused_input_is_not_kept_for_the_bodies_that_did_not_change_back():
+    # Only the bodies that moved are written to their rows; after a refused input the rows
+    # before the bad body hold it, so they must be written again even where the next input
+    # equals the last accepted one.
+    scene = uniform(400, seed=4)  # 200 dynamic bodies
+    world = World(broad_phase='grid')
+    reference = World(broad_phase='brute_force')
+    for w in (world, reference):
+        w.set_static(scene.static_poses, scene.static_half_extents)
+    accepted = scene.dynamic_poses(0.0)
+    world.step(accepted, scene.dynamic_half_extents)
+    for moving in (slice(None), slice(None, None, 3)):
+        refused = accepted.copy()
+        refused[moving] = scene.dynamic_poses(5.0)[moving]
+        refused[99, 3:] = 0.0  # a zero quaternion, refused after the bodies before it
+        with pytest.raises(ValueError, match='body 99: .*quaternion'):
+            world.step(refused, scene.dynamic_half_extents)
+        accepted = accepted.copy()
+        accepted[100:] = scene.dynamic_poses(0.2)[100:]  # half change, the rest as before
+        assert np.array_equal(world.step(accepted, scene.dynamic_half_extents).contacts,
+                              reference.step(accepted, scene.dynamic_half_extents).contacts)

@@ -356,19 +356,22 @@ class World:
             moved = None  # nothing to keep: the plain path
         n_dynamic = len(poses)
         n_static = self._n_static
+        written = moved  # the bodies whose rows are written (None: all)
         if n_static + n_dynamic > self._boxes.capacity:
             self._boxes = self._boxes.grown(2 * (n_static + n_dynamic), n_static)
             self._build_static_structure()
+            written = None  # the dynamic rows were not copied
         self._ticks_since_sort += 1
         if len(self._dynamic_ids) != n_dynamic or self._rows_are_stale(poses, half_extents):
             self._sort_dynamic_rows(poses)
-        set_boxes(self._boxes, n_static, poses, half_extents, self._dynamic_rows)
+            written = None  # rows now hold other bodies
+        rows = self._write_dynamic_boxes(poses, half_extents, written)
         mode = self._continuous_mode(n_dynamic)
         if mode == SWEPT:
             self._sweep_bounds(poses, half_extents)
         if self._margin > 0.0:
-            pad_bounds(self._boxes.aabbs, self._boxes.radii, self._boxes.margins,
-                       self._dynamic_rows, n_static, self._margin / 2)
+            pad_bounds(self._boxes.aabbs, self._boxes.radii, self._boxes.margins, rows,
+                       n_static, self._margin / 2)
         prepared = time.perf_counter()
 
         stats = {'broad_phase': self._phase.name, 'dynamic_bodies': n_dynamic,
@@ -437,6 +440,24 @@ class World:
             self._changed[changed_rows] = False
             self._changed_rows = np.zeros(0, np.int64)
         return result
+
+    def _write_dynamic_boxes(self, poses, half_extents, moved):
+        """Write the bodies that ``moved`` (None: all) to their rows; return the rows written.
+
+        The rows of the others hold their boxes, bit for bit, since the last step. Raises
+        InvalidBox naming the first invalid body by its index in ``poses``; the rows before
+        it then hold refused input, so the next step writes every row.
+        """
+        bodies = slice(None) if moved is None else np.flatnonzero(moved)
+        rows = self._dynamic_rows[bodies]
+        try:
+            set_boxes(self._boxes, self._n_static, poses[bodies],
+                      half_extents[bodies] if half_extents.ndim == 2 else half_extents, rows)
+        except InvalidBox as error:
+            self._last = None
+            body = error.body if moved is None else int(bodies[error.body])
+            raise InvalidBox(body, error.reason) from None
+        return rows
 
     def _continuous_mode(self, n_dynamic):
         """Return how this step is checked: OFF, SWEPT, or why it falls back to discrete."""

@@ -19,8 +19,9 @@ holds:
 ``find_pairs(boxes, n_static, n_dynamic, moved=None) -> (pairs, compared)``
     Called every tick; dynamic boxes are rows ``[n_static, n_static + n_dynamic)``.
     ``moved`` (bool per dynamic row, or None: all) says which dynamic boxes changed since the
-    last tick: a phase may leave out the pairs of an unchanged box with a static box, whose
-    contacts the World keeps from the last tick (the grid does; the others ignore it).
+    last tick: a phase may leave out the pairs of an unchanged box with a static box or with
+    another unchanged box, whose contacts the World keeps from the last tick (the grid does;
+    the others ignore it).
     ``pairs`` is an (P, 2) int64 array of row indices: column 0 is a dynamic box, column 1 a
     static box or a dynamic box with a larger row; no pair twice, no static-static pair. It
     holds at least every pair whose AABBs overlap (``sphere``: whose bounding spheres

@@ -182,7 +182,8 @@ def _within_ratio(a, b, ratio):
 def _bucket_pairs(n_static, dynamic, static, moved, first_bucket, stop_bucket, out):
     """Pairs of the small boxes entered in buckets ``[first_bucket, stop_bucket)``.
 
-    A dynamic box that has not ``moved`` gets no pairs with static boxes (see find_pairs).
+    A dynamic box that has not ``moved`` gets no pairs with static boxes nor with another
+    such box (see find_pairs).
     """
     rows, boxes = dynamic.rows, dynamic.aabbs
     bucket_end, entry_slot = dynamic.bucket_end, dynamic.entry_slot
@@ -207,16 +208,20 @@ def _bucket_pairs(n_static, dynamic, static, moved, first_bucket, stop_bucket, o
             # The box's AABB in locals: the stores to ``out`` would make LLVM reload it.
             x0, y0, z0 = boxes[slot, 0, 0], boxes[slot, 0, 1], boxes[slot, 0, 2]
             x1, y1, z1 = boxes[slot, 1, 0], boxes[slot, 1, 1], boxes[slot, 1, 2]
-            # Only the first shared cell of a pair owns it; tested without branches.
+            has_moved = moved[row - n_static]
+            # Only the first shared cell of a pair owns it; tested without branches. Two boxes
+            # that have not moved are no pair either (see find_pairs).
             for f in range(e + 1, end):
                 owned = (entry_key[f] == key) & ((first | entry_first[f]) == ALL_FIRST)
                 compared += owned
                 other = entry_slot[f]
-                hit = owned & _overlaps(x0, y0, z0, x1, y1, z1, boxes, other)
-                count = emit_if(out, count, hit, min(row, rows[other]), max(row, rows[other]))
+                other_row = rows[other]
+                hit = owned & (has_moved | moved[other_row - n_static]) \
+                    & _overlaps(x0, y0, z0, x1, y1, z1, boxes, other)
+                count = emit_if(out, count, hit, min(row, other_row), max(row, other_row))
             # A box that has not moved skips the static boxes: two thirds of the loop's steps
             # at 10,000 bodies. When every box moved the test always passes, at no cost.
-            static_until = static_stop if moved[row - n_static] else static_start
+            static_until = static_stop if has_moved else static_start
             for s in range(static_start, static_until):
                 owned = (static_key[s] == key) & ((first | static_first[s]) == ALL_FIRST)
                 compared += owned
