@@ -77,7 +77,6 @@ class Grid:
         self._static_mean_side = 0.0
         self._order = np.zeros(0, np.int64)  # dynamic rows, neighbours together
         self._order_of = (0, 0)  # (n_static, n_dynamic) the order was made for
-        self._everyone = np.ones(0, np.bool_)  # find_pairs' moved when none is given
         self.stats = {'static_builds': 0}
 
     def set_static(self, boxes, n_static):
@@ -121,10 +120,6 @@ class Grid:
                 self._fill_dynamic(aabbs, n_static, n_dynamic, self._static_lattice,
                                    self._static.sizes[3])
         dynamic, static = self._dynamic, self._static
-        if moved is None:
-            if len(self._everyone) < n_dynamic:
-                self._everyone = np.ones(n_dynamic, np.bool_)
-            moved = self._everyone
 
         def chunk(k, first_bucket, stop_bucket):
             return self._buffers[k].fill(_bucket_pairs, n_static, dynamic, static, moved,
@@ -182,8 +177,8 @@ def _within_ratio(a, b, ratio):
 def _bucket_pairs(n_static, dynamic, static, moved, first_bucket, stop_bucket, out):
     """Pairs of the small boxes entered in buckets ``[first_bucket, stop_bucket)``.
 
-    A dynamic box that has not ``moved`` gets no pairs with static boxes nor with another
-    such box (see find_pairs).
+    A dynamic box that has not ``moved`` (None: every box moved) gets no pairs with static
+    boxes nor with another such box (see find_pairs).
     """
     rows, boxes = dynamic.rows, dynamic.aabbs
     bucket_end, entry_slot = dynamic.bucket_end, dynamic.entry_slot
@@ -208,16 +203,18 @@ def _bucket_pairs(n_static, dynamic, static, moved, first_bucket, stop_bucket, o
             # The box's AABB in locals: the stores to ``out`` would make LLVM reload it.
             x0, y0, z0 = boxes[slot, 0, 0], boxes[slot, 0, 1], boxes[slot, 0, 2]
             x1, y1, z1 = boxes[slot, 1, 0], boxes[slot, 1, 1], boxes[slot, 1, 2]
-            has_moved = moved[row - n_static]
+            has_moved = True if moved is None else moved[row - n_static]
             # Only the first shared cell of a pair owns it; tested without branches. Two boxes
-            # that have not moved are no pair either (see find_pairs).
+            # that have not moved are no pair either (see find_pairs); with ``moved`` None
+            # (all moved) numba compiles that test away.
             for f in range(e + 1, end):
                 owned = (entry_key[f] == key) & ((first | entry_first[f]) == ALL_FIRST)
                 compared += owned
                 other = entry_slot[f]
                 other_row = rows[other]
-                hit = owned & (has_moved | moved[other_row - n_static]) \
-                    & _overlaps(x0, y0, z0, x1, y1, z1, boxes, other)
+                if moved is not None:
+                    owned &= has_moved | moved[other_row - n_static]
+                hit = owned & _overlaps(x0, y0, z0, x1, y1, z1, boxes, other)
                 count = emit_if(out, count, hit, min(row, other_row), max(row, other_row))
             # A box that has not moved skips the static boxes: two thirds of the loop's steps
             # at 10,000 bodies. When every box moved the test always passes, at no cost.
