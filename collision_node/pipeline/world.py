@@ -6,7 +6,8 @@
     world.move_static(static_poses, static_half_extents)       # the same S boxes, changed
 
 Boxes live in one preallocated :class:`~collision_node.pipeline.obb.Boxes`: static rows first
-(written once), dynamic rows after them (rewritten each tick), so a tick copies no static data.
+(written once), dynamic rows after them (each tick, those of the bodies that moved: the others
+hold last step's boxes bit for bit), so a tick copies no static data and no still body.
 
 Rows are in spatial order, not in the order of the input: static row i holds the static box
 reported as ``static_ids[i]``, dynamic row ``n_static + i`` body ``dynamic_ids[i]``, the
