@@ -287,15 +287,14 @@ class World:
             return 0
         # All of them (every tick, for statics that move like dynamic bodies): views, no copies.
         take = slice(None) if len(boxes_changed) == count else boxes_changed
-        rows = self._static_rows[take]
         try:
-            set_boxes(self._boxes, 0, poses[take], extents[take], rows)
-        except InvalidBox as error:
+            rows = _write_bodies(self._boxes, 0, poses, extents, self._static_rows, take)
+        except InvalidBox:
             # The boxes before the invalid one are written: back to their last (valid) state.
-            set_boxes(self._boxes, 0, self._static.poses[take], self._static.half_extents[take],
-                      rows)
+            rows = _write_bodies(self._boxes, 0, self._static.poses, self._static.half_extents,
+                                 self._static_rows, take)
             self._pad_static_rows(rows)
-            raise InvalidBox(int(boxes_changed[error.body]), error.reason) from None
+            raise
         self._pad_static_rows(rows)
         self._static.poses[take] = poses[take]
         self._static.half_extents[take] = extents[take]
@@ -450,15 +449,12 @@ class World:
         it then hold refused input, so the next step writes every row.
         """
         bodies = slice(None) if moved is None else np.flatnonzero(moved)
-        rows = self._dynamic_rows[bodies]
         try:
-            set_boxes(self._boxes, self._n_static, poses[bodies],
-                      half_extents[bodies] if half_extents.ndim == 2 else half_extents, rows)
-        except InvalidBox as error:
+            return _write_bodies(self._boxes, self._n_static, poses, half_extents,
+                                 self._dynamic_rows, bodies)
+        except InvalidBox:
             self._last = None
-            body = error.body if moved is None else int(bodies[error.body])
-            raise InvalidBox(body, error.reason) from None
-        return rows
+            raise
 
     def _continuous_mode(self, n_dynamic):
         """Return how this step is checked: OFF, SWEPT, or why it falls back to discrete."""
@@ -639,6 +635,23 @@ def _checked_tolerance(value):
         raise ValueError('continuous tolerance must be in (0, %g] m, got %r'
                          % (MAX_COORDINATE, value))
     return tolerance
+
+
+def _write_bodies(boxes, first, poses, half_extents, rows, bodies):
+    """Write ``poses[bodies]`` to rows ``first + rows[bodies]``; return ``rows[bodies]``.
+
+    ``bodies``: an index array, or ``slice(None)`` for all (views, no copies); ``half_extents``
+    one per pose or (3,) for all. Raises InvalidBox naming the first invalid body by its index
+    in ``poses``.
+    """
+    written = rows[bodies]
+    try:
+        set_boxes(boxes, first, poses[bodies],
+                  half_extents[bodies] if half_extents.ndim == 2 else half_extents, written)
+    except InvalidBox as error:
+        body = np.arange(len(poses))[bodies][error.body]
+        raise InvalidBox(int(body), error.reason) from None
+    return written
 
 
 def _check_valid(status):
