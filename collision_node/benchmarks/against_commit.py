@@ -48,11 +48,10 @@ from collision_node import World, warm_up
 from collision_node.pipeline import scenes
 warm_up()
 STAGES = ('prepare_ms', 'broad_ms', 'narrow_ms')
-def inputs(name, n, k):
+def inputs(name, scene, k):
+    extents = scene.dynamic_half_extents
     if name == 'flying_out':
-        scene = SCENES[(name, n)]
-        return scene.dynamic_poses(k / 12), scene.dynamic_half_extents
-    scene = SCENES[(name, n)]
+        return scene.dynamic_poses(k / 12), extents
     if name == 'low_motion':
         poses = scene.dynamic_poses(0.0)
         poses[::10] = scene.dynamic_poses(k / 60)[::10]
@@ -60,28 +59,25 @@ def inputs(name, n, k):
         poses = scene.dynamic_poses(np.random.default_rng(k).uniform(0, 60))
     elif name == 'count':
         poses = scene.dynamic_poses(k / 60)[:scene.dynamic_count - k % 2]
-        return poses, scene.dynamic_half_extents[:len(poses)]
+        extents = extents[:len(poses)]
     else:
         poses = scene.dynamic_poses(k / 60)
-    return poses, scene.dynamic_half_extents
-SCENES = {}
+    return poses, extents
 medians = {}
 for case, ticks in json.loads(sys.argv[1]):
     name, n = case.split(':')
-    n = int(n)
-    scene = scenes.flying_out(n, 0) if name == 'flying_out' else scenes.uniform(n, 0)
-    SCENES[(name, n)] = scene
+    scene = scenes.flying_out(int(n), 0) if name == 'flying_out' else scenes.uniform(int(n), 0)
     world = World()
     if name != 'flying_out':
         world.set_static(scene.static_poses, scene.static_half_extents)
     times = []
     stages = []
     for k in range(5 + ticks):
-        poses, extents = inputs(name, n, k)
+        poses, extents = inputs(name, scene, k)
         start = time.perf_counter()
         stats = world.step(poses, extents).stats
         times.append(time.perf_counter() - start)
-        stages.append([stats.get(stage, 0.0) for stage in STAGES])
+        stages.append([stats[stage] for stage in STAGES])
     row = {'tick': 1e3 * float(np.median(times[5:]))}
     row.update(zip(STAGES, np.median(stages[5:], axis=0).tolist()))
     medians[case] = row
