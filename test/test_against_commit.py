@@ -11,9 +11,9 @@ def test_export_writes_the_commits_package(tmp_path):
     assert 'class World' in world.read_text()
 
 
-def test_child_times_each_case_and_its_stages_in_the_given_tree():
+def test_child_times_each_case_and_its_stages_in_the_given_tree_and_threads():
     cases = ['uniform:20', 'low_motion:40', 'flying_out:30', 'teleport:20', 'count:20']
-    medians = against_commit.run_child(str(against_commit.REPO), [(c, 3) for c in cases])
+    medians = against_commit.run_child(str(against_commit.REPO), [(c, 3) for c in cases], 2)
     assert set(medians) == set(cases)
     for row in medians.values():
         assert set(row) == {'tick', 'prepare_ms', 'broad_ms', 'narrow_ms'}

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from collision_node import World
+from collision_node.pipeline import contacts as contacts_module
 from collision_node.pipeline import world as world_module
 from collision_node.pipeline.broadphase import (check_settings, grid, make_broad_phase, NAMES,
                                                 Settings)
@@ -279,6 +280,8 @@ def small_chunks(monkeypatch):
     """Chunks of a few items, so that the test scenes' loops are spread over threads."""
     monkeypatch.setattr(grid, 'MIN_BUCKETS_PER_CHUNK', 7)
     monkeypatch.setattr(world_module, 'MIN_PAIRS_PER_CHUNK', 5)
+    monkeypatch.setattr(world_module, 'MIN_BODIES_PER_CHUNK', 3)
+    monkeypatch.setattr(contacts_module, 'MIN_CONTACTS_PER_CHUNK', 2)
 
 
 @pytest.mark.parametrize('scene_name', sorted(SCENES))

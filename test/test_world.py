@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from collision_node import CONTACT_DTYPE, DYNAMIC, STATIC, World
+from collision_node.pipeline import world as world_module
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.obb import QUATERNION_NORM_TOLERANCE
 from collision_node.pipeline.scenes import uniform
@@ -275,12 +276,15 @@ def test_unknown_settings_are_refused_with_the_choices():
     assert world.broad_phase == 'brute_force'
 
 
-def test_a_refused_input_is_not_kept_for_the_bodies_that_did_not_change_back():
+@pytest.mark.parametrize('threads', [1, 2])
+def test_a_refused_input_is_not_kept_for_the_bodies_that_did_not_change_back(
+        threads, monkeypatch):
     # Only the bodies that moved are written to their rows; after a refused input the rows
-    # before the bad body hold it, so they must be written again even where the next input
-    # equals the last accepted one.
+    # before the bad body (and, on threads, other chunks' rows) hold it, so they must be
+    # written again even where the next input equals the last accepted one.
+    monkeypatch.setattr(world_module, 'MIN_BODIES_PER_CHUNK', 16)
     scene = uniform(400, seed=4)  # 200 dynamic bodies
-    world = World(broad_phase='grid')
+    world = World(broad_phase='grid', threads=threads)
     reference = World(broad_phase='brute_force')
     for w in (world, reference):
         w.set_static(scene.static_poses, scene.static_half_extents)
@@ -296,3 +300,19 @@ def test_a_refused_input_is_not_kept_for_the_bodies_that_did_not_change_back():
         accepted[100:] = scene.dynamic_poses(0.2)[100:]  # half change, the rest as before
         assert np.array_equal(world.step(accepted, scene.dynamic_half_extents).contacts,
                               reference.step(accepted, scene.dynamic_half_extents).contacts)
+    world.close()
+
+
+def test_threads_name_the_first_invalid_body_whichever_chunk_met_it(monkeypatch):
+    monkeypatch.setattr(world_module, 'MIN_BODIES_PER_CHUNK', 8)
+    poses = np.array([pose(3.0 * k) for k in range(64)])
+    poses[50, 0] = np.inf  # a later chunk, which a helper may well meet first
+    poses[20, 3:] = 0.0
+    world = World(broad_phase='grid', threads=3)
+    for _ in range(5):
+        with pytest.raises(ValueError, match='body 20: .*quaternion'):
+            world.step(poses, [0.5, 0.5, 0.5])
+    poses[20, 3:] = (0.0, 0.0, 0.0, 1.0)
+    with pytest.raises(ValueError, match='body 50: .*NaN or Inf'):
+        world.step(poses, [0.5, 0.5, 0.5])
+    world.close()

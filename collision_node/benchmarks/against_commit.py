@@ -64,10 +64,11 @@ def inputs(name, scene, k):
         poses = scene.dynamic_poses(k / 60)
     return poses, extents
 medians = {}
-for case, ticks in json.loads(sys.argv[1]):
+sizes, threads = json.loads(sys.argv[1])
+for case, ticks in sizes:
     name, n = case.split(':')
     scene = scenes.flying_out(int(n), 0) if name == 'flying_out' else scenes.uniform(int(n), 0)
-    world = World()
+    world = World(threads=threads)
     if name != 'flying_out':
         world.set_static(scene.static_poses, scene.static_half_extents)
     times = []
@@ -81,6 +82,7 @@ for case, ticks in json.loads(sys.argv[1]):
     row = {'tick': 1e3 * float(np.median(times[5:]))}
     row.update(zip(STAGES, np.median(stages[5:], axis=0).tolist()))
     medians[case] = row
+    world.close()
 print(json.dumps(medians))
 """
 
@@ -95,6 +97,8 @@ def main(argv=None):
     parser.add_argument('--rounds', type=int, default=6)
     parser.add_argument('--tick-budget', type=float, default=600.0,
                         help='ms of ticks per case and process (more ticks for small sizes)')
+    parser.add_argument('--threads', type=int, default=1,
+                        help="the World's threads in both trees (default 1)")
     parser.add_argument('--stages', action='store_true',
                         help='also print the median stage times (World.step stats) per case')
     args = parser.parse_args(argv)
@@ -110,18 +114,18 @@ def main(argv=None):
         sizes = [(case, ticks_for(int(case.split(':')[1]), args.tick_budget))
                  for case in cases]
         for tree in trees.values():  # compile into each tree's cache, untimed
-            run_child(tree, [(case, 1) for case in cases])
+            run_child(tree, [(case, 1) for case in cases], args.threads)
         rounds = []
         for k in range(args.rounds):
             order = ('base', 'this') if k % 2 == 0 else ('this', 'base')
-            rounds.append({name: run_child(trees[name], sizes) for name in order})
+            rounds.append({name: run_child(trees[name], sizes, args.threads) for name in order})
             base, this = rounds[-1]['base'], rounds[-1]['this']
             print('round %d: %s' % (k + 1, '  '.join(
                 '%s: base %.4f this %.4f ms' % (case, base[case]['tick'], this[case]['tick'])
                 for case in cases)), flush=True)
     info = machine()
-    print('\n%s (%d cores); this tree %s, base %s, %d rounds'
-          % (info['cpu'], info['cores'], info['commit'], args.base, args.rounds))
+    print('\n%s (%d cores); this tree %s, base %s, %d rounds, %d thread(s)'
+          % (info['cpu'], info['cores'], info['commit'], args.base, args.rounds, args.threads))
     for case, ratios in summary(rounds, cases).items():
         print('%16s: this / base per round %s; median %.3f'
               % (case, ' '.join('%.3f' % r for r in ratios), statistics.median(ratios)))
@@ -158,11 +162,11 @@ def export(ref, directory):
     subprocess.run(['tar', '-x', '-C', directory], input=archive, check=True)
 
 
-def run_child(tree, sizes):
+def run_child(tree, sizes, threads):
     """Return {case: {stage: median ms}} of World.step, timed in a process importing ``tree``."""
     env = dict(os.environ, PYTHONPATH=tree)
-    out = subprocess.run([sys.executable, '-c', CHILD, json.dumps(sizes)], env=env, cwd=tree,
-                         check=True, capture_output=True, text=True).stdout
+    out = subprocess.run([sys.executable, '-c', CHILD, json.dumps([sizes, threads])], env=env,
+                         cwd=tree, check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 

@@ -78,6 +78,9 @@ SWEPT = 'on'
 # Least candidate pairs in a chunk when the SAT is spread over threads: ~0.15 ms of SAT
 # (~75 ns a pair) against the ~10-50 µs a helper's dispatch costs.
 MIN_PAIRS_PER_CHUNK = 2048
+# Least bodies in a chunk when their boxes are written over threads: ~35 ns a body (more at
+# 100,000 bodies, whose rows leave the caches), so ~0.3 ms a chunk.
+MIN_BODIES_PER_CHUNK = 8192
 # The broad phase's static structure is rebuilt once the loose static boxes (moved since it was
 # built, and not kept by the phase) have cost, summed over the ticks since it was built, as many
 # AABB comparisons (loose x dynamic boxes per tick) as its rebuild costs: this many per static
@@ -288,11 +291,12 @@ class World:
         # All of them (every tick, for statics that move like dynamic bodies): views, no copies.
         take = slice(None) if len(boxes_changed) == count else boxes_changed
         try:
-            rows = _write_bodies(self._boxes, 0, poses, extents, self._static_rows, take)
+            rows = _write_bodies(self._boxes, 0, poses, extents, self._static_rows, take,
+                                 self._workers)
         except InvalidBox:
             # The boxes before the invalid one are written: back to their last (valid) state.
             rows = _write_bodies(self._boxes, 0, self._static.poses, self._static.half_extents,
-                                 self._static_rows, take)
+                                 self._static_rows, take, self._workers)
             self._pad_static_rows(rows)
             raise
         self._pad_static_rows(rows)
@@ -420,7 +424,8 @@ class World:
                 status, depth, normal, point, sat_tests = self._collide(pairs)
                 _check_valid(status)
                 contacts = assemble_contacts(pairs, status, depth, normal, point, n_static,
-                                             n_dynamic, self._static_ids, self._dynamic_ids)
+                                             n_dynamic, self._static_ids, self._dynamic_ids,
+                                             workers=self._workers)
             if moved is not None:
                 contacts = merge_contacts(
                     self._contacts_of_still_bodies(moved, self._static_ids[changed_rows]),
@@ -451,7 +456,7 @@ class World:
         bodies = slice(None) if moved is None else np.flatnonzero(moved)
         try:
             return _write_bodies(self._boxes, self._n_static, poses, half_extents,
-                                 self._dynamic_rows, bodies)
+                                 self._dynamic_rows, bodies, self._workers)
         except InvalidBox:
             self._last = None
             raise
@@ -506,7 +511,7 @@ class World:
         status, depth, normal, point, sat_tests = self._collide(pairs)
         _check_valid(status)
         contacts = assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic,
-                                     self._static_ids, self._dynamic_ids, toi)
+                                     self._static_ids, self._dynamic_ids, toi, self._workers)
         between = (status != COLLIDING) & (status != NEAR)
         if between.any():
             pairs, toi = pairs[between], toi[between]
@@ -518,7 +523,7 @@ class World:
                 np.arange(len(centers)).reshape(-1, 2), margin=math.inf)
             _check_valid(status)
             swept = assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic,
-                                      self._static_ids, self._dynamic_ids, toi)
+                                      self._static_ids, self._dynamic_ids, toi, self._workers)
             swept['depth'] = 0.0
             contacts = merge_contacts(contacts, swept)
         stats.update(swept_pairs=int(between.sum()),
@@ -637,20 +642,35 @@ def _checked_tolerance(value):
     return tolerance
 
 
-def _write_bodies(boxes, first, poses, half_extents, rows, bodies):
+def _write_bodies(boxes, first, poses, half_extents, rows, bodies, workers):
     """Write ``poses[bodies]`` to rows ``first + rows[bodies]``; return ``rows[bodies]``.
 
     ``bodies``: an index array, or ``slice(None)`` for all (views, no copies); ``half_extents``
-    one per pose or (3,) for all. Raises InvalidBox naming the first invalid body by its index
-    in ``poses``.
+    one per pose or (3,) for all. The bodies are cut into chunks over the ``workers``' threads
+    (each writes its own rows). Raises InvalidBox naming the first invalid body by its index
+    in ``poses``, whichever thread met it; the other chunks may be written.
     """
+    if half_extents.shape not in ((3,), (len(poses), 3)):  # chunks would hide a mismatch
+        raise ValueError('half extents must have shape (3,) or (%d, 3), got %s'
+                         % (len(poses), half_extents.shape))
     written = rows[bodies]
-    try:
-        set_boxes(boxes, first, poses[bodies],
-                  half_extents[bodies] if half_extents.ndim == 2 else half_extents, written)
-    except InvalidBox as error:
-        body = np.arange(len(poses))[bodies][error.body]
-        raise InvalidBox(int(body), error.reason) from None
+    taken = poses[bodies]
+    extents = half_extents[bodies] if half_extents.ndim == 2 else half_extents
+
+    def chunk(_, start, stop):
+        try:
+            set_boxes(boxes, first, taken[start:stop],
+                      extents[start:stop] if extents.ndim == 2 else extents,
+                      written[start:stop])
+        except InvalidBox as error:
+            return start + error.body, error.reason
+        return None
+
+    refused = [bad for bad in workers.map_ranges(chunk, len(written), MIN_BODIES_PER_CHUNK)
+               if bad is not None]
+    if refused:
+        index, reason = min(refused)
+        raise InvalidBox(int(np.arange(len(poses))[bodies][index]), reason)
     return written
 
 
