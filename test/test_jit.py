@@ -53,7 +53,8 @@ for name, pose, extents in zip(names, room.static_poses, room.static_half_extent
 one_size = [0.1, 0.1, 0.1]
 per_body = room.dynamic_half_extents.ravel().tolist()
 nodes = [CollisionNode(parameter_overrides=colliders + [
-             Parameter('dynamic.half_extents', value=sizes)]) for sizes in (one_size, per_body)]
+             Parameter('dynamic.half_extents', value=sizes), Parameter('threads', value=threads)])
+         for sizes, threads in ((one_size, 1), (per_body, 1), (one_size, 2))]
 before = compiled()
 for node in nodes:
     for name in NAMES:
