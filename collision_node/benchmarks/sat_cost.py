@@ -3,7 +3,7 @@
     python -m collision_node.benchmarks.sat_cost --bodies 10000
 
 The uniform scene (half static) steps a few ticks in a World; the candidate pairs of the last
-tick (the default broad phase, oriented as the World does) are then timed through
+tick (the default broad phase, oriented and ordered as the World does) are then timed through
 ``collide_pairs`` as a whole, and split by verdict: the colliding pairs (15 axes and a
 contact point each, work every exact answer needs) and the others (a separating axis found,
 or rejected by the sphere prefilter). The second share bounds what a separating-axis cache
@@ -15,7 +15,6 @@ import time
 import numpy as np
 
 from collision_node.benchmarks.collision_bench import machine
-from collision_node.pipeline.contacts import orient_pairs
 from collision_node.pipeline.sat import collide_pairs, COLLIDING, empty_output
 from collision_node.pipeline.scenes import uniform
 from collision_node.pipeline.world import warm_up, World
@@ -32,8 +31,7 @@ def sat_cost(bodies, repeats=30, seed=0):
         world.step(scene.dynamic_poses(tick / 60), scene.dynamic_half_extents)
     boxes, n_static = world._boxes, world.static_count
     pairs, _ = world._phase.find_pairs(boxes, n_static, scene.dynamic_count)
-    pairs = pairs.copy()
-    orient_pairs(pairs, n_static, world._dynamic_ids)
+    pairs = world._oriented_by_row(pairs).copy()
     status = _run(boxes, pairs)[0]
     costs = {}
     for name, subset in (('all', pairs), ('colliding', pairs[status == COLLIDING]),

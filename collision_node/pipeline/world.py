@@ -18,7 +18,7 @@ candidate pair, ran 1.4x faster at 100,000 bodies (the boxes' arrays outgrow the
 there). Without the re-sort a long run loses that: 100,000 bouncing bodies, 2 minutes after
 their rows were sorted, ticked in 70 ms instead of 54. Contacts are reported by input index
 as before, and each pair is still computed in the frame of its smaller id
-(contacts.orient_pairs), so the order changes no bit of the result.
+(contacts.oriented_by_row), so the order changes no bit of the result.
 
 Static boxes that change. :meth:`World.move_static` rewrites only the rows of the boxes that
 changed and tells the broad phase, which keeps in its static structure those it can update
@@ -44,7 +44,7 @@ from collision_node.pipeline.broadphase import make_broad_phase, NAMES, Settings
 from collision_node.pipeline.broadphase.auto import GRID_BODIES
 from collision_node.pipeline.broadphase.pair_buffer import emit, emit_if, PairBuffer
 from collision_node.pipeline.contacts import (  # noqa: F401 (DYNAMIC re-exported)
-    assemble_contacts, closest_contact, CONTACT_DTYPE, DYNAMIC, merge_contacts, orient_pairs,
+    assemble_contacts, closest_contact, CONTACT_DTYPE, DYNAMIC, merge_contacts, oriented_by_row,
     STATIC)
 from collision_node.pipeline.continuous import (advance_pairs, boxes_at, CONTINUOUS_TOLERANCE,
                                                 motion, NO_CONTACT, sweep_bounds)
@@ -133,6 +133,8 @@ class World:
         self._sampled_at = np.zeros((0, 3))    # their positions when the rows were sorted
         self._ticks_since_sort = 0
         self._sat_output = empty_output(0)  # reused from tick to tick, grown as needed
+        self._pairs_by_row = np.zeros((0, 2), np.int64)  # the candidate pairs, as the SAT reads
+        self._row_starts = np.zeros(1, np.int64)  # their counting sort's scratch
         self._continuous = bool(continuous)
         self._tolerance = _checked_tolerance(continuous_tolerance)
         self._previous = None  # the poses of the last accepted input (the motion's start)
@@ -410,7 +412,7 @@ class World:
             stats['broad_phase_stats'] = dict(self._phase.stats)
             broad_done = time.perf_counter()
             candidates = len(pairs)
-            orient_pairs(pairs, n_static, self._dynamic_ids)
+            pairs = self._oriented_by_row(pairs)
             if self._filtering:
                 pairs = pairs[:self._filter.keep_checked(
                     pairs, n_static, self._static_ids, self._static_categories,
@@ -446,6 +448,16 @@ class World:
             self._changed[changed_rows] = False
             self._changed_rows = np.zeros(0, np.int64)
         return result
+
+    def _oriented_by_row(self, pairs):
+        """Return ``pairs`` oriented and ordered by row (contacts.oriented_by_row), in a buffer."""
+        if len(self._pairs_by_row) < len(pairs):
+            self._pairs_by_row = np.empty((int(SAT_OUTPUT_GROWTH * len(pairs)), 2), np.int64)
+        if len(self._row_starts) != self._n_static + len(self._dynamic_ids) + 1:
+            self._row_starts = np.empty(self._n_static + len(self._dynamic_ids) + 1, np.int64)
+        out = self._pairs_by_row[:len(pairs)]
+        oriented_by_row(pairs, self._n_static, self._dynamic_ids, self._row_starts, out)
+        return out
 
     def _write_dynamic_boxes(self, poses, half_extents, moved):
         """Write the bodies that ``moved`` (None: all) to their rows; return the rows written.
@@ -731,7 +743,7 @@ def _front_pairs_with_a_moved_body(pairs, n_static, dynamic_ids, moved, static_c
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
         b = pairs[k, 1]
-        # Without a branch, as in orient_pairs: a static b looks up a valid dummy body, a
+        # Without a branch, as in oriented_by_row: a static b looks up a valid dummy body, a
         # dynamic b a valid dummy static flag (False when there are no static boxes).
         keep = moved[dynamic_ids[a - n_static]] | (
             (b >= n_static) & moved[dynamic_ids[max(b - n_static, 0)]]) | (
