@@ -881,6 +881,10 @@ def warm_up():
         for step_poses in poses:
             world.step(step_poses, [0.05, 0.05, 0.05])
         world.close()
+    # The helpers' hand-over (workers.py), which small scenes never cut into chunks.
+    workers = Workers(2)
+    workers.map_ranges(lambda chunk, start, stop: None, 2, 1)
+    workers.close()
     # Static boxes that moved under still bodies: a little (kept in every phase's structure),
     # then far (loose in the grid and the octree: paired by the World itself).
     for name in NAMES:

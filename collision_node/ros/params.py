@@ -77,8 +77,9 @@ PARAMETERS = {
     'input_timeout_s': Spec(DOUBLE, 1.0, 'no valid input for this long: ERROR diagnostic; '
                                          '0 disables'),
     'max_bodies': Spec(INTEGER, 100000, 'inputs with more poses are rejected'),
-    'threads': Spec(INTEGER, 1, "threads for the grid's pair search and the SAT: 1 keeps every "
-                                "tick on the executor's thread; 2+ pay from ~10,000 bodies"),
+    'threads': Spec(INTEGER, 1, "threads for the box writes, the grid's pair search, the SAT and "
+                                "the contacts: 1 keeps every tick on the executor's thread; 2+ "
+                                "pay from ~10,000 bodies"),
     'diagnostic_updater.period': Spec(DOUBLE, 1.0, 's between /diagnostics messages'),
 }
 COLLIDER_PARAMETERS = {  # <name>.<key>; pose and half_extents have no default: they must be given
