@@ -297,7 +297,8 @@ class World:
             rows = _write_bodies(self._boxes, 0, poses, extents, self._static_rows, take,
                                  self._workers)
         except InvalidBox:
-            # The boxes before the invalid one are written: back to their last (valid) state.
+            # Boxes are written (before the invalid one, and other threads' chunks): all of
+            # them back to their last (valid) state.
             rows = _write_bodies(self._boxes, 0, self._static.poses, self._static.half_extents,
                                  self._static_rows, take, self._workers)
             self._pad_static_rows(rows)
