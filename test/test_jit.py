@@ -98,6 +98,11 @@ assert nodes[0].set_parameters([Parameter('broad_phase', value='auto'),
 crowd = scenes.room(1500, seed=5)
 for t in (0.0, 0.5):
     nodes[0]._check(serialize_pose_array(1, 0, '', crowd.dynamic_poses(t)))
+# Past SORT_PAIRS_ROWS boxes the World sorts the candidate pairs by row (1 and 2 threads).
+big = scenes.room(17000, seed=6)
+for node in (nodes[0], nodes[2]):
+    for t in (0.0, 0.5):
+        node._check(serialize_pose_array(1, 0, '', big.dynamic_poses(t)))
 after = compiled()
 assert len(before) > 5, before
 changed = {key: (before.get(key), count) for key, count in after.items()

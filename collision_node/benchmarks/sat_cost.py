@@ -31,7 +31,7 @@ def sat_cost(bodies, repeats=30, seed=0):
         world.step(scene.dynamic_poses(tick / 60), scene.dynamic_half_extents)
     boxes, n_static = world._boxes, world.static_count
     pairs, _ = world._phase.find_pairs(boxes, n_static, scene.dynamic_count)
-    pairs = world._oriented_by_row(pairs).copy()
+    pairs = world._oriented(pairs).copy()
     status = _run(boxes, pairs)[0]
     costs = {}
     for name, subset in (('all', pairs), ('colliding', pairs[status == COLLIDING]),
