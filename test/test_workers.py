@@ -5,7 +5,6 @@ import time
 
 import pytest
 
-from collision_node.pipeline import workers as workers_module
 from collision_node.pipeline.workers import CHUNKS_PER_THREAD, Workers
 
 
@@ -66,11 +65,9 @@ def test_threads_must_be_a_positive_integer(threads):
         Workers(threads)
 
 
-@pytest.mark.parametrize('spin_checks', [1, 2_000_000])
-def test_back_to_back_loops_wait_for_every_chunk(monkeypatch, spin_checks):
-    # Loops of uneven chunks follow each other at once: a helper still leaving one loop (or a
-    # caller that gave up spinning and sleeps) must never let the next one miss a chunk.
-    monkeypatch.setattr(workers_module, 'SPIN_CHECKS', spin_checks)
+def test_back_to_back_loops_wait_for_every_chunk():
+    # Loops of uneven chunks follow each other at once: a helper still finishing one loop must
+    # never let the caller return from it, nor the next loop miss a chunk.
     rng = random.Random(7)
     workers = Workers(3)
     for loop in range(300):
@@ -84,38 +81,3 @@ def test_back_to_back_loops_wait_for_every_chunk(monkeypatch, spin_checks):
         results = workers.map_ranges(task, count, rng.randint(1, 6))
         assert [i for chunk in results for i in chunk] == list(range(count)), loop
     workers.close()
-
-
-def test_helpers_sleep_between_loops_and_wake_for_the_next():
-    workers = Workers(2)
-    seen = set()
-
-    def task(k, start, stop):
-        seen.add(threading.get_ident())
-        time.sleep(0.005)
-
-    workers.map_ranges(task, 8, 1)
-    time.sleep(0.05)  # far longer than the helpers spin: they sleep on the Event
-    seen.clear()
-    workers.map_ranges(task, 8, 1)
-    assert len(seen) == 2
-    helpers = list(workers._helpers)
-    workers.close()
-    assert helpers and not any(helper.is_alive() for helper in helpers)
-
-
-def test_closing_never_waits_for_a_helper_that_missed_its_wake_up():
-    # Several helpers, each between its last spin and its sleep at any moment: closing (a
-    # job like any other) must reach every one of them.
-    rng = random.Random(3)
-    for _ in range(200):
-        workers = Workers(3)
-        for _ in range(rng.randint(0, 3)):
-            workers.map_ranges(lambda k, start, stop: time.sleep(rng.random() * 3e-4),
-                               rng.randint(0, 10), 1)
-            time.sleep(rng.random() * 1e-3)
-        helpers = list(workers._helpers)
-        closing = threading.Thread(target=workers.close)
-        closing.start()
-        closing.join(timeout=10.0)
-        assert not closing.is_alive() and not any(helper.is_alive() for helper in helpers)

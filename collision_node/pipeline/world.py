@@ -897,10 +897,6 @@ def warm_up():
     # Candidate pairs sorted by row, which only scenes of SORT_PAIRS_ROWS boxes are.
     pairs = np.array([[0, 1]])
     orient_pairs(pairs, 0, np.arange(2), np.zeros(3, np.int64), pairs.copy())
-    # The helpers' hand-over (workers.py), which small scenes never cut into chunks.
-    workers = Workers(2)
-    workers.map_ranges(lambda chunk, start, stop: None, 2, 1)
-    workers.close()
     # Static boxes that moved under still bodies: a little (kept in every phase's structure),
     # then far (loose in the grid and the octree: paired by the World itself).
     for name in NAMES:
