@@ -63,10 +63,9 @@ def assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, 
     starts = ends[:-1].copy()  # each body's first row; ``ends`` becomes the rows' cursors
 
     def chunk(_, first_row, stop_row):
-        # The bodies whose rows start in [first_row, stop_row): disjoint rows and cursors.
+        # The bodies whose rows start in [first_row, stop_row): disjoint rows and cursors (the
+        # bodies after the last row have none).
         first_body, stop_body = np.searchsorted(starts, (first_row, stop_row))
-        if stop_row == count:
-            stop_body = n_dynamic
         _assemble(pairs, colliding, bodies, first_body, stop_body, depth, normal, point,
                   n_static, static_ids, dynamic_ids, toi, ends, contacts)
 
