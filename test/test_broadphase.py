@@ -281,7 +281,7 @@ def small_chunks(monkeypatch):
     monkeypatch.setattr(grid, 'MIN_BUCKETS_PER_CHUNK', 7)
     monkeypatch.setattr(world_module, 'MIN_PAIRS_PER_CHUNK', 5)
     monkeypatch.setattr(world_module, 'MIN_BODIES_PER_CHUNK', 3)
-    monkeypatch.setattr(contacts_module, 'MIN_CONTACTS_PER_CHUNK', 2)
+    monkeypatch.setattr(contacts_module, 'MIN_PAIRS_PER_THREAD', 2)
 
 
 @pytest.mark.parametrize('scene_name', sorted(SCENES))

@@ -98,7 +98,11 @@ assert nodes[0].set_parameters([Parameter('broad_phase', value='auto'),
 crowd = scenes.room(1500, seed=5)
 for t in (0.0, 0.5):
     nodes[0]._check(serialize_pose_array(1, 0, '', crowd.dynamic_poses(t)))
-# Past SORT_PAIRS_ROWS boxes the World sorts the candidate pairs by row (1 and 2 threads).
+# Past SORT_PAIRS_ROWS boxes the World sorts the candidate pairs by row (1 and 2 threads);
+# past MIN_PAIRS_PER_THREAD pairs a thread it assembles the contacts over threads (nodes[2],
+# still continuous: discrete, then swept).
+assert nodes[2].set_parameters([Parameter('dynamic.collision_category',
+                                          value=[1])])[0].successful
 big = scenes.room(17000, seed=6)
 for node in (nodes[0], nodes[2]):
     for t in (0.0, 0.5):

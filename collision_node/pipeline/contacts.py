@@ -28,9 +28,11 @@ CONTACT_DTYPE = np.dtype([
 # Contacts of one body are sorted by insertion sort up to this many, by np.argsort beyond
 # (a body usually touches a handful of others; a huge box may touch thousands).
 INSERTION_SORT_MAX = 32
-# Least contacts in a chunk when the rows are written over threads: ~45 ns a contact, so a
-# chunk is ~0.4 ms, well above a helper's dispatch (~50 µs on a virtual machine).
-MIN_CONTACTS_PER_CHUNK = 8192
+# Least candidate pairs per thread for the contacts to be assembled over threads. Below it
+# listing the pairs by range and dispatching a helper cost more than the second thread saves
+# (measured at 10,000 bodies, 26,000 pairs: 1.04x the tick on 2 threads); at 100,000 bodies
+# (270,000 pairs) assembly takes 4.7 instead of 6.2 ms.
+MIN_PAIRS_PER_THREAD = 32768
 
 
 def assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, static_ids,
@@ -41,36 +43,35 @@ def assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, 
     row to the collider id reported for it, ``dynamic_ids`` (default: the identity) a dynamic
     row minus ``n_static`` to the body's index in the PoseArray. Two dynamic bodies must come
     in id order (:func:`orient_pairs`). ``toi``: one per pair, or None for 1 everywhere.
-    ``workers`` (:class:`~.workers.Workers`) spread the rows over threads, each thread the
-    rows of a range of bodies A.
+    ``workers`` (:class:`~.workers.Workers`) spread the rows over threads from
+    ``MIN_PAIRS_PER_THREAD`` pairs a thread, each thread the rows of a range of bodies A.
     """
     if dynamic_ids is None:
         dynamic_ids = np.arange(n_dynamic)
+    # Threads take equal ranges of bodies A, each writing its own rows; the counting pass
+    # lists every range's colliding pairs apart, so that no thread reads the others'.
+    parts = 1 if workers is None else min(workers.threads,
+                                          max(1, len(pairs) // MIN_PAIRS_PER_THREAD))
+    first_bodies = np.array([n_dynamic * j // parts for j in range(parts + 1)], np.int64)
     ends = np.zeros(n_dynamic + 1, np.int64)
-    colliding = np.empty(len(pairs), np.int64)
-    threaded = workers is not None and workers.threads > 1
-    # Threads look up each contact's body once per range: listed here, it is one read.
-    bodies = np.empty(len(pairs), np.int64) if threaded else None
-    count = _count_by_body(pairs, status, n_static, dynamic_ids, ends, colliding, bodies)
+    colliding = np.empty((parts, len(pairs)), np.int64)
+    listed = np.zeros(parts, np.int64)
+    count = _count_by_body(pairs, status, n_static, dynamic_ids,
+                           first_bodies if parts > 1 else None, ends, colliding, listed)
     contacts = np.empty(count, CONTACT_DTYPE)
     if not count:
         return contacts
-    colliding = colliding[:count]
-    if not threaded:
-        _assemble(pairs, colliding, None, 0, n_dynamic, depth, normal, point, n_static,
-                  static_ids, dynamic_ids, toi, ends, contacts)
-        return contacts
-    starts = ends[:-1].copy()  # each body's first row; ``ends`` becomes the rows' cursors
 
-    def chunk(_, first_row, stop_row):
-        # The bodies whose rows start in [first_row, stop_row): disjoint rows and cursors (the
-        # bodies after the last row have none).
-        first_body, stop_body = np.searchsorted(starts, (first_row, stop_row))
-        _assemble(pairs, colliding, bodies, first_body, stop_body, depth, normal, point,
-                  n_static, static_ids, dynamic_ids, toi, ends, contacts)
+    def assemble_parts(_, first, stop):
+        for j in range(first, stop):
+            _assemble(pairs, colliding[j, :listed[j]], first_bodies[j], first_bodies[j + 1],
+                      depth, normal, point, n_static, static_ids, dynamic_ids, toi, ends,
+                      contacts)
 
-    # One range per thread: every range reads all of ``bodies`` to find its own.
-    workers.map_ranges(chunk, count, max(MIN_CONTACTS_PER_CHUNK, -(-count // workers.threads)))
+    if parts == 1:
+        assemble_parts(0, 0, 1)
+    else:
+        workers.map_ranges(assemble_parts, parts, 1)
     return contacts
 
 
@@ -155,49 +156,52 @@ def orient_pairs(pairs, n_static, dynamic_ids, starts, out):
 
 
 @kernel
-def _count_by_body(pairs, status, n_static, dynamic_ids, ends, colliding, bodies):
+def _count_by_body(pairs, status, n_static, dynamic_ids, first_bodies, ends, colliding, listed):
     """Set ``ends[body + 1]`` to the number of contacts of bodies up to ``body``; return all.
 
-    The colliding pairs' indices are listed in the first (returned number) of ``colliding``,
-    their bodies A in ``bodies`` unless it is None.
+    Body range j is ``[first_bodies[j], first_bodies[j + 1])``: the indices of its colliding
+    pairs are listed in the first ``listed[j]`` entries of ``colliding[j]``. ``first_bodies``
+    None: one range, all bodies.
     """
     count = 0
     for k in range(pairs.shape[0]):
         # Counted and listed without a branch: a pair collides or not at random (measured
-        # ~2x faster).
+        # ~2x faster). Its range, for the same reason, is a sum of comparisons.
         hit = (status[k] == COLLIDING) | (status[k] == NEAR)
         body = dynamic_ids[pairs[k, 0] - n_static]
         ends[body + 1] += hit
-        colliding[count] = k
-        if bodies is not None:
-            bodies[count] = body
-        count += hit
+        if first_bodies is None:  # one range: its counter stays in a register
+            colliding[0, count] = k
+            count += hit
+        else:
+            part = 0
+            for j in range(1, len(first_bodies) - 1):
+                part += body >= first_bodies[j]
+            colliding[part, listed[part]] = k
+            listed[part] += hit
+    if first_bodies is None:
+        listed[0] = count
     for body in range(len(ends) - 1):
         ends[body + 1] += ends[body]
     return ends[-1]
 
 
 @kernel
-def _assemble(pairs, colliding, bodies, first_body, stop_body, depth, normal, point, n_static,
+def _assemble(pairs, colliding, first_body, stop_body, depth, normal, point, n_static,
               static_ids, dynamic_ids, toi, ends, out):
     """Write and sort the rows of bodies ``[first_body, stop_body)``; ``ends``: their first rows.
 
     A counting sort on id_a (O(hits + bodies)) that writes each contact straight to its row,
     then each body's few rows sorted by (type_b, id_b): the SAT's arrays are read in order
     (measured 1.2x faster than sorting indices and then gathering the rows, at 10k and 100k
-    bodies). ``colliding`` lists the colliding pairs: no branch on the verdict here. Threads
-    take disjoint ranges of bodies, so each writes its own rows and cursors in ``ends``; their
-    ``bodies`` lists the body of each colliding pair (None: one range, all bodies).
+    bodies). ``colliding`` lists the colliding pairs of these bodies: no branch on the verdict
+    here. Ranges of bodies have disjoint rows and cursors in ``ends``, so threads can write
+    them at once.
     """
     start = ends[first_body]
     for c in range(len(colliding)):
         k = colliding[c]
-        if bodies is None:
-            body = dynamic_ids[pairs[k, 0] - n_static]
-        else:
-            body = bodies[c]
-            if body < first_body or body >= stop_body:
-                continue
+        body = dynamic_ids[pairs[k, 0] - n_static]
         row = ends[body]
         ends[body] = row + 1
         b = pairs[k, 1]

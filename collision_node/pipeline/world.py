@@ -44,8 +44,8 @@ from collision_node.pipeline.broadphase import make_broad_phase, NAMES, Settings
 from collision_node.pipeline.broadphase.auto import GRID_BODIES
 from collision_node.pipeline.broadphase.pair_buffer import emit, emit_if, PairBuffer
 from collision_node.pipeline.contacts import (  # noqa: F401 (DYNAMIC re-exported)
-    assemble_contacts, closest_contact, CONTACT_DTYPE, DYNAMIC, merge_contacts, orient_pairs,
-    STATIC)
+    assemble_contacts, closest_contact, CONTACT_DTYPE, DYNAMIC, merge_contacts,
+    MIN_PAIRS_PER_THREAD, orient_pairs, STATIC)
 from collision_node.pipeline.continuous import (advance_pairs, boxes_at, CONTINUOUS_TOLERANCE,
                                                 motion, NO_CONTACT, sweep_bounds)
 from collision_node.pipeline.filters import (ALL_CATEGORIES, collision_bits, DEFAULT_CATEGORY,
@@ -897,6 +897,16 @@ def warm_up():
     # Candidate pairs sorted by row, which only scenes of SORT_PAIRS_ROWS boxes are.
     pairs = np.array([[0, 1]])
     orient_pairs(pairs, 0, np.arange(2), np.zeros(3, np.int64), pairs.copy())
+    # Contacts listed by ranges of bodies for threads, which only ticks of MIN_PAIRS_PER_THREAD
+    # candidate pairs a thread are: two bodies against one static box, many times over.
+    pairs = np.tile([[1, 0], [2, 0]], (MIN_PAIRS_PER_THREAD, 1))
+    status, depth, normal, point = empty_output(len(pairs))
+    status[:] = COLLIDING
+    depth[:] = normal[:] = point[:] = 0.0
+    workers = Workers(2)
+    assemble_contacts(pairs, status, depth, normal, point, 1, 2, np.zeros(1, np.int64),
+                      np.arange(2), workers=workers)
+    workers.close()
     # Static boxes that moved under still bodies: a little (kept in every phase's structure),
     # then far (loose in the grid and the octree: paired by the World itself).
     for name in NAMES:
