@@ -32,7 +32,6 @@ structure is silently stale. Once the loose boxes cost more than rebuilding the 
 The still-body shortcut keeps a contact only when both boxes are bit for bit those of the last
 step: a pair with a static box that changed since then gets a fresh SAT.
 """
-import itertools
 import math
 import time
 from typing import NamedTuple
@@ -880,25 +879,23 @@ def warm_up():
     world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents)
     world.step(_half_moved(scene, 0.5), scene.dynamic_half_extents)
     # Continuous checking (swept bounds, advancement, pairs touching only in between), with
-    # and without margins: a bullet through a wall besides the scene. On two threads too
-    # (contacts assembled by ranges of bodies), for the discrete first step and the swept ones.
+    # and without margins: a bullet through a wall besides the scene.
     bullet = np.array([[0.0, 0.0, -2.0, 0.0, 0.0, 0.0, 1.0]])
     poses = [np.concatenate([scene.dynamic_poses(t), bullet + [[0.0, 0.0, 4.0 * t] + [0.0] * 4]])
              for t in (0.0, 0.5, 1.0)]
-    for margin, threads in itertools.product((0.0, 0.1), (1, 2)):
-        world = World(broad_phase='brute_force', margin=margin, continuous=True,
-                      threads=threads)
+    for margin in (0.0, 0.1):
+        world = World(broad_phase='brute_force', margin=margin, continuous=True)
         world.set_static(np.concatenate([scene.static_poses, [[0.0] * 6 + [1.0]]]),
                          np.concatenate([scene.static_half_extents, [[1.0, 1.0, 0.01]]]),
                          margins=margin)
         for step_poses in poses:
             world.step(step_poses, [0.05, 0.05, 0.05])
-        world.close()
     # Candidate pairs sorted by row, which only scenes of SORT_PAIRS_ROWS boxes are.
     pairs = np.array([[0, 1]])
     orient_pairs(pairs, 0, np.arange(2), np.zeros(3, np.int64), pairs.copy())
-    # Contacts listed by ranges of bodies for threads, which only ticks of MIN_PAIRS_PER_THREAD
-    # candidate pairs a thread are: two bodies against one static box, many times over.
+    # Contacts listed by ranges of bodies for threads (discrete and swept ticks alike), which
+    # only ticks of MIN_PAIRS_PER_THREAD candidate pairs a thread are: two bodies against one
+    # static box, many times over.
     pairs = np.tile([[1, 0], [2, 0]], (MIN_PAIRS_PER_THREAD, 1))
     status, depth, normal, point = empty_output(len(pairs))
     status[:] = COLLIDING
