@@ -86,9 +86,9 @@ def _time_distance(rel, t, ea, eb):
     for k in range(rel.shape[0]):
         r = (rel[k, 0], rel[k, 1], rel[k, 2], rel[k, 3], rel[k, 4], rel[k, 5], rel[k, 6],
              rel[k, 7], rel[k, 8])
-        distance, p, q = box_distance(r, (t[k, 0], t[k, 1], t[k, 2]),
-                                      (ea[k, 0], ea[k, 1], ea[k, 2]),
-                                      (eb[k, 0], eb[k, 1], eb[k, 2]))
+        distance, p, q, _ = box_distance(r, (t[k, 0], t[k, 1], t[k, 2]),
+                                         (ea[k, 0], ea[k, 1], ea[k, 2]),
+                                         (eb[k, 0], eb[k, 1], eb[k, 2]))
         total += distance + p[0] + q[0]
     return total
 

@@ -145,7 +145,7 @@ def segment_segment(edge_a, edge_b):
     return min(candidates, key=lambda candidate: candidate[0])
 
 
-def _support(box, n):
+def support(box, n):
     """Return max over the box of n·x, exactly."""
     return _dot(n, box.center) + sum(e * abs(_dot(n, axis))
                                      for e, axis in zip(box.half_extents, box.axes))
@@ -157,8 +157,8 @@ def certify(box_a, box_b, p, q):
         d = _sub(point, box.center)
         assert all(abs(_dot(axis, d)) <= e for axis, e in zip(box.axes, box.half_extents))
     n = _sub(q, p)
-    assert _support(box_a, n) == _dot(n, p)
-    assert -_support(box_b, tuple(-c for c in n)) == _dot(n, q)
+    assert support(box_a, n) == _dot(n, p)
+    assert -support(box_b, tuple(-c for c in n)) == _dot(n, q)
 
 
 def sqrt_decimal(fraction):

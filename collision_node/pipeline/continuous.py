@@ -56,7 +56,7 @@ import numpy as np
 
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.distance import box_distance
-from collision_node.pipeline.frames import column, dot, matrix, relative_pose, rotate
+from collision_node.pipeline.frames import dot, matrix, projection_gap, relative_pose, rotate
 from collision_node.pipeline.obb import AABB_RELATIVE_MARGIN, EPS, TIE_ULPS
 from collision_node.pipeline.sat import COLLIDING, SEPARATED, separating_axis_test
 
@@ -282,16 +282,14 @@ def _first_contact(motion_a, motion_b, ea, eb, margin, tolerance):
             return NO_CONTACT, step + 1
         if status == COLLIDING:
             return t, step + 1
-        distance, on_a, on_b = box_distance(rel, offset, ea, eb)
+        distance, _, _, n = box_distance(rel, offset, ea, eb)
         excess = distance - margin
         if excess <= tie:
             return t, step + 1
         # The slab between the boxes across their closest direction n (A's frame), measured
         # from the boxes' projections on n: a lower bound of the distance however well
-        # rounding let the closest points define n.
-        n = _unit((on_b[0] - on_a[0], on_b[1] - on_a[1], on_b[2] - on_a[2]))
-        slab = dot(offset, n) - _support(ea, n) - _support(eb, (
-            dot(column(rel, 0), n), dot(column(rel, 1), n), dot(column(rel, 2), n))) - margin
+        # rounding let the closest features define n.
+        slab = projection_gap(rel, offset, ea, eb, n) - margin
         rate = dot(rotate(ra, n), closing) + turning
         if bound * (1.0 - t) < excess - tie or rate * (1.0 - t) < slab - tie:
             return NO_CONTACT, step + 1  # neither bound lets it close the gap before t = 1
@@ -306,18 +304,6 @@ def _first_contact(motion_a, motion_b, ea, eb, margin, tolerance):
             advance = max(advance, (slab - aim) / rate)
         t = min(t + advance, 1.0)
     return t, MAX_ADVANCE_STEPS + 1  # undecided: reported where it got to
-
-
-@kernel
-def _unit(v):
-    length = math.sqrt(dot(v, v))
-    return v[0] / length, v[1] / length, v[2] / length
-
-
-@kernel
-def _support(extents, n):
-    """Half the width of a box along the unit direction n (its components in the box frame)."""
-    return extents[0] * abs(n[0]) + extents[1] * abs(n[1]) + extents[2] * abs(n[2])
 
 
 @kernel

@@ -128,3 +128,15 @@ def edge_overlap(rel, t, ea, eb, i, j):
         if m != j:
             radius_b += eb[m] * abs(u1 * rel[3 * i1 + m] + u2 * rel[3 * i2 + m])
     return radius_a + radius_b - abs(u1 * t[i1] + u2 * t[i2]), u1 * u1 + u2 * u2
+
+
+@kernel
+def projection_gap(rel, t, ea, eb, n):
+    """Return the gap (< 0: overlap) between the boxes' projections on the direction n.
+
+    n in A's frame, unit: the distance is at least this gap, equal to it along the closest
+    direction.
+    """
+    nb = (dot(column(rel, 0), n), dot(column(rel, 1), n), dot(column(rel, 2), n))
+    return (dot(t, n) - (ea[0] * abs(n[0]) + ea[1] * abs(n[1]) + ea[2] * abs(n[2]))
+            - (eb[0] * abs(nb[0]) + eb[1] * abs(nb[1]) + eb[2] * abs(nb[2])))

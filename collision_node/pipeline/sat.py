@@ -48,12 +48,26 @@ edge×edge axis of two edges at an angle θ: float64 rotation matrices define th
 nearly parallel edges' cross product no better (the depth stays accurate, and the boxes
 overlap along the reported normal by the reported depth).
 
+Near pairs (apart, within a margin): the distance is exact (distance.py), the point is the
+midpoint of the closest points, and the normal the direction between the closest features
+(distance.box_distance, "Normal"), so that point ∓ normal · distance / 2 are the closest
+points. Should rounding tilt that direction out of the features' normal cones by enough to
+lose more than the touching tolerance against the SAT's widest gap, the normal is the SAT's
+widest-gap axis instead (never taken in the tests). So at every gap the normal is unit and
+separates the boxes within the touching tolerance. Checked against the exact referee
+(test/test_distance.py, every class, gaps 1e-15 to 10 × size): the points lie on their boxes
+within 1e-11 × the pair's size (near-parallel edges far apart; 1e-14 elsewhere), and the
+boxes' projections on the normal are apart by the distance within 3e-14 × size. What
+float64 cannot promise: if the SAT's axis is ever taken, the points are off their boxes by up
+to half the distance × its angle to the features' direction.
+
 Non-finite input: any NaN or Inf in the centres, rotations or half extents of a pair, or an
 overflow of its relative pose (centres ~1e308 apart), makes its status INVALID (never
 SEPARATED or COLLIDING), also when the sphere prefilter would have rejected the pair. The
 radii only feed the sphere prefilter: a NaN radius makes it keep the pair.
 """
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -61,8 +75,8 @@ from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.distance import box_distance
 from collision_node.pipeline.frames import (column, cross, dot, edge_overlap, face_a_overlap,
                                             face_b_overlap, matrix, MIN_EDGE_AXIS_LENGTH,
-                                            relative_pose, rotate, sum_abs, zero_if_finite,
-                                            zero_if_finite_matrix)
+                                            projection_gap, relative_pose, rotate, sum_abs,
+                                            zero_if_finite, zero_if_finite_matrix)
 from collision_node.pipeline.obb import EPS, spheres_apart, TIE_ULPS
 
 SEPARATED = 0
@@ -70,11 +84,6 @@ COLLIDING = 1
 INVALID = 2  # a NaN or Inf reached the test: it claims neither verdict
 NEAR = 3     # apart, but within the pair's margin (exact distance)
 
-# A NEAR pair's normal is the direction between its closest points when they are at least
-# this × the pair's scale apart (√(TIE_ULPS·EPS) ≈ 1.2e-7: rounding δ of the points tilts the
-# direction by δ/d, which costs a face of width w a gap of w·δ/d; separating needs d² ≥ δ·w),
-# else the SAT's widest-gap axis (_near_normal).
-NORMAL_FROM_POINTS = math.sqrt(TIE_ULPS * EPS)
 # A box axis this close to perpendicular to the normal counts as lying flat on it when the
 # contact feature is picked, so a face lying on a face yields the middle of that face.
 FEATURE_TOLERANCE = 1e-9
@@ -107,9 +116,10 @@ def collide_pairs(centers, rotations, half_extents, radii, pairs, sphere_prefilt
 
     Margin: a pair of boxes apart by at most ``margin`` + ``box_margins[a]`` +
     ``box_margins[b]`` (exact Euclidean distance) is NEAR; its depth is minus that distance,
-    its normal the unit vector from A's closest point to B's, its point their midpoint. The
-    radii (for the sphere test) must include the margins (obb.pad_bounds). With no margin the
-    result is bit for bit that of the plain SAT.
+    its point the midpoint of the closest points, its normal the unit direction from A's
+    closest point to B's (module docstring, "Near pairs"), so that the closest points are
+    point ∓ normal · distance / 2. The radii (for the sphere test) must include the margins
+    (obb.pad_bounds). With no margin the result is bit for bit that of the plain SAT.
     """
     pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
     n = len(pairs)
@@ -137,15 +147,25 @@ def collide_pairs(centers, rotations, half_extents, radii, pairs, sphere_prefilt
 ORTHONORMAL_TOLERANCE = 1e-12
 
 
+class SignedDistance(NamedTuple):
+    """Two boxes' signed distance, as :func:`signed_distance` returns it (world frame)."""
+
+    distance: float         # > 0 apart, ≤ 0 touching or overlapping (minus the depth)
+    point_a: np.ndarray     # closest point of A (apart), else the contact point
+    point_b: np.ndarray     # closest point of B (apart), else the contact point
+    normal: np.ndarray      # unit, from A to B: the cloud's normal
+
+
 def signed_distance(center_a, rotation_a, half_extents_a, center_b, rotation_b,
                     half_extents_b):
-    """Return ``(distance, point_a, point_b)`` of two boxes, by the World's own code path.
+    """Return the :class:`SignedDistance` of two boxes, by the World's own code path.
 
     Centres (3,), rotation matrices (3, 3) with the box axes as columns, half extents (3,).
-    Apart: the exact distance (> 0) and the closest points of A and B. Touching or
-    overlapping: minus the penetration depth (≤ 0), both points the contact point. This is
-    :func:`collide_pairs` with an infinite margin. Raises ValueError on wrong shapes,
-    non-finite values, negative half extents or rotations that are not orthonormal.
+    Apart: the exact distance (> 0), the closest points of A and B, which are the cloud's
+    point ∓ normal · distance / 2. Touching or overlapping: minus the penetration depth
+    (≤ 0), both points the contact point. This is :func:`collide_pairs` with an infinite
+    margin. Raises ValueError on wrong shapes, non-finite values, negative half extents or
+    rotations that are not orthonormal.
     """
     center_a = _checked(center_a, (3,), 'center_a')
     center_b = _checked(center_b, (3,), 'center_b')
@@ -170,7 +190,7 @@ def signed_distance(center_a, rotation_a, half_extents_a, center_b, rotation_b,
                          % (center_a, center_b))
     distance = -depth[0]
     gap = 0.5 * max(distance, 0.0) * normal[0]
-    return distance, point[0] - gap, point[0] + gap
+    return SignedDistance(distance, point[0] - gap, point[0] + gap, normal[0].copy())
 
 
 def _checked(value, shape, name):
@@ -239,12 +259,13 @@ def _collide_pairs(centers, rotations, extents, radii, pairs, sphere_prefilter, 
         if status[k] == COLLIDING:
             axis, local_point = _contact(rel, t, ea, eb, tie, axis_id)
         elif margin is not None and status[k] == NEAR:
-            distance, on_a, on_b = box_distance(rel, t, ea, eb)
+            widest_gap = -depth[k]
+            distance, on_a, on_b, closest = box_distance(rel, t, ea, eb)
             if not distance <= pair_margin:
                 status[k] = SEPARATED
                 continue
             depth[k] = -distance
-            axis = _near_normal(rel, t, scale, axis_id, on_a, on_b)
+            axis = _near_normal(rel, t, ea, eb, tie, closest, widest_gap, axis_id)
             local_point = (0.5 * (on_a[0] + on_b[0]), 0.5 * (on_a[1] + on_b[1]),
                            0.5 * (on_a[2] + on_b[2]))
         else:
@@ -258,21 +279,20 @@ def _collide_pairs(centers, rotations, extents, radii, pairs, sphere_prefilter, 
 
 
 @kernel
-def _near_normal(rel, t, scale, axis_id, on_a, on_b):
-    """Return the unit normal of a NEAR pair, from A's closest point ``on_a`` to B's ``on_b``.
+def _near_normal(rel, t, ea, eb, tie, closest, widest_gap, axis_id):
+    """Return the unit normal of a NEAR pair: ``closest``, or the SAT's axis if that is wider.
 
-    The closest points carry rounding of a few ulps of ``scale``; their offset's direction is
-    off by that over its length, which tilts a normal across a face of width w by enough to
-    cost w times the tilt of the gap along it. Below NORMAL_FROM_POINTS × scale that tilt
-    could make the normal fail to separate the boxes (seen: a "unit" normal 11 long at a
-    1e-14 gap), so there the SAT's widest-gap axis, which separates them exactly, is the
-    normal. Above it the offset is normalised by its own length: unit to rounding.
+    ``closest`` is box_distance's direction between the closest features (zero when it has
+    none). The boxes' projections on it are apart by the distance, at least ``widest_gap``
+    (the SAT's widest gap, on axis ``axis_id``), as long as rounding leaves it inside the
+    features' normal cones. When rounding tilts it out of them by enough to lose more than
+    the touching tolerance ``tie`` against the SAT's gap, the SAT's axis is the normal (module
+    docstring, "Near pairs"): the normal always separates the boxes, within ``tie``.
     """
-    offset = (on_b[0] - on_a[0], on_b[1] - on_a[1], on_b[2] - on_a[2])
-    length = math.sqrt(dot(offset, offset))
-    if not length > NORMAL_FROM_POINTS * scale:
-        return _unit_axis(rel, t, axis_id)
-    return offset[0] / length, offset[1] / length, offset[2] / length
+    if (closest[0] != 0.0 or closest[1] != 0.0 or closest[2] != 0.0) and \
+            projection_gap(rel, t, ea, eb, closest) >= widest_gap - tie:
+        return closest
+    return _unit_axis(rel, t, axis_id)
 
 
 @kernel
