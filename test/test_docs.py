@@ -27,18 +27,18 @@ LINK = re.compile(r'\]\(([^)\s]+)\)')
 
 
 def pages():
-    """README.md and every markdown page of doc/."""
+    """Return README.md and every markdown page of doc/."""
     return [README] + sorted(DOC.glob('*.md'))
 
 
 def anchor(heading):
-    """GitHub's anchor for a heading: lower case, punctuation dropped, spaces to hyphens."""
+    """Return GitHub's anchor for a heading: lower case, punctuation dropped, spaces to hyphens."""
     text = re.sub(r'[^\w\- ]', '', heading.strip().lower())
     return text.replace(' ', '-')
 
 
 def anchors(page):
-    """The anchors of a page's headings (outside code blocks), duplicates numbered as GitHub."""
+    """Return the anchors of a page's headings (outside code blocks), numbered as GitHub does."""
     found, seen = set(), {}
     text = re.sub(r'^```.*?^```', '', page.read_text(), flags=re.MULTILINE | re.DOTALL)
     for heading in re.findall(r'^#+ (.*)$', text, re.MULTILINE):
@@ -50,7 +50,7 @@ def anchors(page):
 
 
 def prose(page):
-    """A page's text without its code blocks (links inside code are not links)."""
+    """Return a page's text without its code blocks (links inside code are not links)."""
     return re.sub(r'^```.*?^```', '', page.read_text(), flags=re.MULTILINE | re.DOTALL)
 
 

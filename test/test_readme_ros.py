@@ -2,8 +2,9 @@
 
 The node and the monitor start from the README's own command lines (``.venv/bin/`` being this
 Python's venv), the script is the README's snippet saved as ``my_poses.py``, and the monitor
-must print the README's lines. The two scripts of doc/changing-scene.md run the same way. Masked are only what a clock decides: the stamp, and the level
-and message of the status (``1 ticks at 1.0 Hz`` measures the period the tick fell in).
+must print the README's lines. Masked are only what a clock decides: the stamp, and the level
+and message of the status (``1 ticks at 1.0 Hz`` measures the period the tick fell in). The two
+scripts of doc/changing-scene.md run against the node the same way.
 """
 import os
 import random
