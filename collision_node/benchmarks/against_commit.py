@@ -1,4 +1,4 @@
-"""The World's tick against an earlier commit's, in alternating processes.
+"""The World's tick against an earlier commit's, in alternating processes (a developer's tool).
 
     python -m collision_node.benchmarks.against_commit --base d153dac
     python -m collision_node.benchmarks.against_commit --base HEAD~3 --bodies 1000 --rounds 10
@@ -38,7 +38,8 @@ REPO = pathlib.Path(collision_node.__file__).resolve().parent.parent
 # version sees the same inputs):
 #   uniform     the uniform scene, half static, at 60 Hz
 #   low_motion  the same, one dynamic body in ten moving, the others still
-#   flying_out  paper 001's seed scene, every body static-free and flying apart, at 12 Hz
+#   flying_out  the "Discrete Collision Algorithms" scene, no static bodies, flying apart,
+#               at 12 Hz
 #   teleport    the uniform scene's bodies at a random time each tick (no coherence at all)
 #   count       the uniform scene with one body more or fewer every tick
 CHILD = """
