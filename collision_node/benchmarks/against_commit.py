@@ -1,5 +1,8 @@
 """The World's tick against an earlier commit's, in alternating processes (a developer's tool).
 
+For whoever changes this package: it answers "did my change cost time?", so it is not a console
+script and the user documentation leaves it out; its results belong in commit messages.
+
     python -m collision_node.benchmarks.against_commit --base d153dac
     python -m collision_node.benchmarks.against_commit --base HEAD~3 --bodies 1000 --rounds 10
     python -m collision_node.benchmarks.against_commit --base b59f077 --cases low_motion:10000 \
