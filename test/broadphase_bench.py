@@ -1,4 +1,4 @@
-"""Per-tick time of every broad phase through World.step, and the studies the README cites.
+"""Per-tick time of every broad phase through World.step, and the studies doc/ cites.
 
     python test/broadphase_bench.py [--sizes 1000 10000 100000] [--scenes uniform ...]
     python test/broadphase_bench.py --study kd_tree   # rebuild or refit (kd_tree docstring)
@@ -11,8 +11,8 @@ the whole ``World.step`` (``time.process_time``: less disturbed when other proce
 cores), the median candidate pairs and the phase that ran (what ``auto`` chose). A phase
 whose first tick takes longer than ``--give-up`` seconds is skipped at that size and beyond.
 Scenes come from ``collision_node.pipeline.scenes`` (the lead's benchmark scenes): ``uniform`` and
-``clustered`` have half of the bodies static; ``flying_out`` is paper 001's seed scene,
-measured over its first ``--seconds`` seconds (dense at first, sparse later).
+``clustered`` have half of the bodies static; ``flying_out`` is the "Discrete Collision
+Algorithms" scene, measured over its first ``--seconds`` seconds (dense at first, sparse later).
 """
 import argparse
 import os

@@ -61,7 +61,7 @@ def uniform(n, seed=0, static_fraction=0.5, clustered=False, speed=0.5):
 
 
 def flying_out(n, seed=0, dt=0.05):
-    """Paper 001's seed scene: cubes start packed at the origin and fly outward."""
+    """Return the "Discrete Collision Algorithms" scene: cubes packed at the origin fly out."""
     rng = np.random.default_rng(seed)
     direction = rng.normal(size=(n, 3))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)

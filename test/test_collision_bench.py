@@ -1,6 +1,7 @@
 """collision_bench on its tiny plan: the files, their columns, and properties that must hold."""
 import itertools
 import json
+import pathlib
 
 import numpy as np
 import pytest
@@ -14,6 +15,8 @@ from collision_node.benchmarks.runs import all_pairs
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import make_scene
 from collision_node.pipeline.world import CONTACT_DTYPE, DYNAMIC, STATIC
+
+REPO = pathlib.Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope='module')
@@ -57,13 +60,24 @@ def test_markdown_tables_have_the_named_columns(tiny_run):
     for column in ('broad phase', 'mode', 'compared', 'false positives', 'false negatives',
                    'median ms', 'p99 ms'):
         assert column in accuracy
-    paper = _header_of_table_after(markdown, '## Paper 001')
+    paper = _header_of_table_after(markdown, '## "Discrete Collision Algorithms"')
     for column in ('slowest ticks/s', 'quickest ticks/s', 'average ticks/s', 'least compared',
                    'most compared'):
         assert column in paper
-    for heading in ('## Targets (DESIGN §5)', '## Paper 000', '## python-fcl side by side',
+    for heading in ('## Targets', '## "Engine Algorithms"', '## python-fcl side by side',
                     '## Where a tick goes', '## Threads', '## Margins and filters'):
         assert heading in markdown
+
+
+def test_the_committed_results_page_is_the_generators_page(tiny_run):
+    """doc/benchmark_results.md is results.md of a run: the same sections, no commit named."""
+    _, output, _ = tiny_run
+
+    def headings(text):
+        return [line for line in text.splitlines() if line.startswith('#')]
+    committed = (REPO / 'doc' / 'benchmark_results.md').read_text()
+    assert headings(committed) == headings((output / 'results.md').read_text())
+    assert 'commit' not in committed.split('\n## ')[0]
 
 
 def test_threads_section_finds_the_same_contacts_with_each_thread_count(tiny_run):

@@ -404,11 +404,11 @@ def fcl_continuous(motion, solver, motion_type):
     return found
 
 
-def test_python_fcl_continuous_collide_differs_as_the_readme_says():
+def test_python_fcl_continuous_collide_differs_as_the_docs_say():
     """Check python-fcl's default and naive modes: translations found, rotation missed.
 
     Its linear and screw motions are left out: their answers on these motions changed with
-    the calls made before in the same process (README).
+    the calls made before in the same process (doc/continuous.md).
     """
     fcl = pytest.importorskip('fcl')
     advancement = fcl.CCDSolverType.CCDC_CONSERVATIVE_ADVANCEMENT

@@ -1,8 +1,9 @@
 """Collision filtering: categories and masks, ignored pairs, for every broad phase.
 
 The reference is the unfiltered brute-force World's contacts, filtered here in plain Python
-by the rule as the README states it: a pair is reported only if ``category_a & mask_b`` and
-``category_b & mask_a`` are both non-zero and the pair is not in ``ignored_pairs``.
+by the rule as doc/filtering-and-margins.md states it: a pair is reported only if
+``category_a & mask_b`` and ``category_b & mask_a`` are both non-zero and the pair is not in
+``ignored_pairs``.
 """
 from broadphase_reference import uniform
 import numpy as np

@@ -1,4 +1,4 @@
-"""The import rule of the package's folders (README, Layout).
+"""The import rule of the package's folders (doc/design.md, Code map).
 
 ``pipeline`` imports nothing of ``collision_node`` outside itself and nothing of ROS; ``ros``
 imports ``pipeline`` and itself only; ``benchmarks`` and ``tools`` sit on top. Every import is

@@ -1,6 +1,6 @@
 """The numpy-written MarkerArray against the same markers built one by one with rclpy.
 
-The reference builds each Marker object by hand from the DESIGN §3 description (DELETEALL,
+The reference builds each Marker object by hand from the doc/design.md description (DELETEALL,
 then static cubes, dynamic cubes coloured by whether they collide, one arrow per contact) and
 rclpy deserialises the writer's bytes; the two messages must be equal field for field.
 """

@@ -1,4 +1,4 @@
-"""The `collisions` cloud against a naive per-point build of the layout in DESIGN §3."""
+"""The `collisions` cloud against a naive per-point build of the layout in doc/design.md."""
 import struct
 
 import numpy as np
@@ -14,7 +14,7 @@ from collision_node.ros.messages import (CLOUD_DTYPE, cloud_to_contacts, CloudWr
 
 FLOAT_NAMES = ['x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth', 'distance', 'toi']
 ID_NAMES = ['id_a', 'type_a', 'id_b', 'type_b']
-# The point as DESIGN §3 specifies it: the fields added later (distance, toi) come last.
+# The point as doc/design.md specifies it: the fields added later (distance, toi) come last.
 POINT_NAMES = FLOAT_NAMES[:7] + ID_NAMES + ['distance', 'toi']
 POINT_STEP = 52
 # (name, offset, datatype, count) of each field.

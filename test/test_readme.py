@@ -1,7 +1,7 @@
-"""Every Python snippet of the README, run as written.
+"""Every Python snippet of the README and of doc/, run as written.
 
-Each snippet is found by the heading it stands under, so a README edit that breaks one fails
-here. The snippet that publishes through ROS is run by test_readme_ros.py.
+Each snippet is found by its page and the heading it stands under, so an edit that breaks one
+fails here. The snippets that publish through ROS are run by test_readme_ros.py.
 """
 import contextlib
 import io
@@ -13,13 +13,24 @@ from std_msgs.msg import Header
 
 from collision_node.pipeline import scenes
 
-README = pathlib.Path(__file__).resolve().parent.parent / 'README.md'
+REPO = pathlib.Path(__file__).resolve().parent.parent
+README = REPO / 'README.md'
+DOC = REPO / 'doc'
+# Every page with ```python blocks, and the headings they stand under: each has a test here or
+# in test_readme_ros.py.
+SNIPPETS = {
+    'README.md': ['Publishing poses from a script', 'The collisions cloud'],
+    'doc/design.md': ['Static collider ids'],
+    'doc/python-api.md': ['Python API'],
+    'doc/changing-scene.md': ['Moving colliders with static_poses',
+                              'Adding, removing, resizing, enabling with parameters'],
+}
 
 
-def code_blocks(language):
-    """{heading: [code, ...]} for every ```language block of the README ('': no language)."""
+def code_blocks(language, page=README):
+    """{heading: [code, ...]} for every ```language block of a page ('': no language)."""
     blocks, heading = {}, None
-    for match in re.finditer(r'^(#+ [^\n]*)$|^```(\w*)\n(.*?)^```', README.read_text(),
+    for match in re.finditer(r'^(#+ [^\n]*)$|^```(\w*)\n(.*?)^```', page.read_text(),
                              re.MULTILINE | re.DOTALL):
         if match.group(1):
             heading = match.group(1).lstrip('#').strip()
@@ -28,15 +39,16 @@ def code_blocks(language):
     return blocks
 
 
-def python_snippets():
-    """{heading: [code, ...]} for every ```python block of the README."""
-    return code_blocks('python')
+def python_snippets(page=README):
+    """{heading: [code, ...]} for every ```python block of a page."""
+    return code_blocks('python', page)
 
 
 def test_every_snippet_has_a_test():
-    assert sorted(python_snippets()) == sorted(
-        ['The collisions cloud', 'Publishing poses from a script', 'Python API',
-         'Changing the scene while the node runs'])
+    pages = [README] + sorted(DOC.glob('*.md'))
+    found = {page.relative_to(REPO).as_posix(): sorted(python_snippets(page)) for page in pages}
+    assert {name: headings for name, headings in found.items() if headings} == {
+        name: sorted(headings) for name, headings in SNIPPETS.items()}
 
 
 def test_python_api_snippet():
@@ -45,7 +57,7 @@ def test_python_api_snippet():
                  'static_half_extents': scene.static_half_extents,
                  'dynamic_poses': scene.dynamic_poses(0.0),
                  'dynamic_half_extents': scene.dynamic_half_extents}
-    snippet, = python_snippets()['Python API']
+    snippet, = python_snippets(DOC / 'python-api.md')['Python API']
     exec(snippet, namespace)
     result = namespace['result']
     assert result.stats['dynamic_bodies'] == 40
@@ -61,7 +73,7 @@ def test_cloud_snippet_reads_a_real_cloud():
     contacts = world.step(scene.dynamic_poses(0.0), scene.dynamic_half_extents).contacts
     assert len(contacts) > 0
     namespace = {}
-    _, snippet = python_snippets()['The collisions cloud']
+    snippet, = python_snippets()['The collisions cloud']
     exec(snippet, namespace)
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
@@ -75,7 +87,7 @@ def test_cloud_snippet_reads_a_real_cloud():
 
 def test_static_names_snippet_reads_the_diagnostics():
     from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-    snippet, _ = python_snippets()['The collisions cloud']
+    snippet, = python_snippets(DOC / 'design.md')['Static collider ids']
     namespace = {}
     exec(snippet, namespace)
     status = DiagnosticStatus(values=[KeyValue(key='scene_version', value='3'),

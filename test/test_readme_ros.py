@@ -3,7 +3,8 @@
 The node and the monitor start from the README's own command lines (``.venv/bin/`` being this
 Python's venv), the script is the README's snippet saved as ``my_poses.py``, and the monitor
 must print the README's lines. Masked are only what a clock decides: the stamp, and the level
-and message of the status (``1 ticks at 1.0 Hz`` measures the period the tick fell in).
+and message of the status (``1 ticks at 1.0 Hz`` measures the period the tick fell in). The two
+scripts of doc/changing-scene.md run against the node the same way.
 """
 import os
 import random
@@ -17,7 +18,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from ros_helpers import make_context, node_environment, REPO
-from test_readme import code_blocks, python_snippets
+from test_readme import code_blocks, DOC, python_snippets
 
 from collision_node.tools.processes import stop_process
 
@@ -84,13 +85,15 @@ def test_the_script_gets_its_answer_to_the_monitor(tmp_path):
     assert re.fullmatch(shown_as(expected), masked(output)), output
 
 
-CHANGING = 'Changing the scene while the node runs'
+CHANGING = DOC / 'changing-scene.md'
 
 
 def test_the_scene_changing_scripts_change_the_nodes_scene(tmp_path):
-    """Both scripts of the section, run as written against the node on the demo room."""
+    """Both scripts of the page, run as written against the node on the demo room."""
     node_line = code_blocks('bash')[SECTION][0].splitlines()[0]
-    move_script, change_script = python_snippets()[CHANGING]
+    move_script, = python_snippets(CHANGING)['Moving colliders with static_poses']
+    change_script, = python_snippets(CHANGING)[
+        'Adding, removing, resizing, enabling with parameters']
     (tmp_path / 'move.py').write_text(move_script)
     (tmp_path / 'change.py').write_text(change_script)
     env = node_environment(DOMAIN_ID)

@@ -1,4 +1,4 @@
-"""Skip what a scene does not need (DESIGN §6), and skip nothing a scene does need.
+"""Skip what a scene does not need (doc/python-api.md), and skip nothing a scene does need.
 
 Each skip is checked by what runs (spies on the broad phase and the box writer), and each is
 checked not to hide a change: an answer reused or work left out must equal the full answer.

@@ -5,12 +5,12 @@ Ground truth is the float64 SAT on every pair whose AABBs overlap (``World(broad
 The modes, cheapest first, each counting as colliding:
 
 ``every compared pair (classic)``
-    every pair the broad phase compared: paper 001's "classic" octree, which calls every pair
-    sharing a leaf a collision. The phases do not return these pairs, only their number
-    (``compared``: each pair sharing a leaf or cell once, as the octree and grid count them;
-    every pair for brute force), so its false positives are counted as compared − true pairs,
-    which assumes, as holds for every phase here, that the compared pairs include the true
-    ones (the SAT float64 rows show they do: no false negatives);
+    every pair the broad phase compared: the "classic" octree of "Discrete Collision Algorithms",
+    which calls every pair sharing a leaf a collision. The phases do not return these pairs, only
+    their number (``compared``: each pair sharing a leaf or cell once, as the octree and grid count
+    them; every pair for brute force), so its false positives are counted as compared − true pairs,
+    which assumes, as holds for every phase here, that the compared pairs include the true ones
+    (the SAT float64 rows show they do: no false negatives);
 ``broad phase only``
     every candidate pair the broad phase returns (the phases here already drop the pairs
     whose AABBs, or for ``sphere`` bounding spheres, are apart);

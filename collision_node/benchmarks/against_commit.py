@@ -1,4 +1,7 @@
-"""The World's tick against an earlier commit's, in alternating processes.
+"""The World's tick against an earlier commit's, in alternating processes (a developer's tool).
+
+For whoever changes this package: it answers "did my change cost time?", so it is not a console
+script and the user documentation leaves it out; its results belong in commit messages.
 
     python -m collision_node.benchmarks.against_commit --base d153dac
     python -m collision_node.benchmarks.against_commit --base HEAD~3 --bodies 1000 --rounds 10
@@ -38,7 +41,8 @@ REPO = pathlib.Path(collision_node.__file__).resolve().parent.parent
 # version sees the same inputs):
 #   uniform     the uniform scene, half static, at 60 Hz
 #   low_motion  the same, one dynamic body in ten moving, the others still
-#   flying_out  paper 001's seed scene, every body static-free and flying apart, at 12 Hz
+#   flying_out  the "Discrete Collision Algorithms" scene, no static bodies, flying apart,
+#               at 12 Hz
 #   teleport    the uniform scene's bodies at a random time each tick (no coherence at all)
 #   count       the uniform scene with one body more or fewer every tick
 CHILD = """

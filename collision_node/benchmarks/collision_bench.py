@@ -3,7 +3,7 @@
     collision_bench --quick --output bench_results     # a subset, under 2 minutes
     collision_bench --output bench_results             # every scene (long; prints progress)
 
-Writes OUTPUT/results.json (every number), OUTPUT/results.md (the tables, the DESIGN §5
+Writes OUTPUT/results.json (every number), OUTPUT/results.md (the tables, the performance
 targets with pass/fail, the command that reproduces them) and OUTPUT/time_vs_error.png.
 python-fcl and matplotlib are optional (the ``bench`` extra): without them the fcl table and
 the plot are left out and say why. Scenes come from :mod:`collision_node.pipeline.scenes`, seeded.
@@ -30,12 +30,12 @@ from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import make_scene
 from collision_node.pipeline.world import warm_up, World
 
-OCTREE_DEPTHS = tuple(range(1, 10))  # paper 001's Table 1
-PAPER000_OCTREE_DEPTH = 4            # paper 000's octree ran at depth 4
+OCTREE_DEPTHS = tuple(range(1, 10))  # Table 1 of "Discrete Collision Algorithms"
+PAPER000_OCTREE_DEPTH = 4            # the octree of "Engine Algorithms" ran at depth 4
 DEFAULT_PHASE = 'auto'               # what the node uses unless told otherwise
 SECTIONS = ('paper001', 'octree_depths', 'paper000', 'scenes', 'accuracy', 'fcl', 'profile',
             'threads', 'margins', 'continuous', 'static_moves')
-THREAD_COUNTS = (1, 2)  # the World's threads: this machine's cores
+THREAD_COUNTS = (1, 2)  # the World's threads: one, and both cores of a 2-core machine
 # The margins section: margins as fractions of the mean box size (its full side), and one run
 # with half the dynamic pairs masked out (categories 1 and 2 in turn, each accepting its own).
 MARGIN_FRACTIONS = (0.0, 0.02, 0.1)
@@ -55,10 +55,10 @@ STATIC_MOVES_PER_TICK = 10
 class Plan(NamedTuple):
     """What one benchmark run covers. Sizes are total body counts."""
 
-    flying_out_sizes: tuple    # paper 001's scene, every broad phase
+    flying_out_sizes: tuple    # "Discrete Collision Algorithms" scene, every broad phase
     flying_out_ticks: int
     flying_out_dt: float       # s; ticks * dt simulated seconds, dense at first, then sparse
-    depth_sizes: tuple         # paper 001's scene, octree depths 1-9
+    depth_sizes: tuple         # the same scene, octree depths 1-9
     paper000_bodies: int
     paper000_ticks: int
     scene_sizes: tuple         # (scene, bodies): uniform and clustered, every broad phase
@@ -72,7 +72,7 @@ class Plan(NamedTuple):
     static_move_sizes: tuple   # (bodies, ticks per configuration): uniform scene, statics moving
     budget_s: float            # a run stops early (marked truncated) after this wall time
     # A run expected to take longer per tick is skipped; one stops after a tick that took
-    # longer. Keep it >= 1 s: then a skipped run misses every DESIGN §5 target even if its
+    # longer. Keep it >= 1 s: then a skipped run misses every performance target even if its
     # phase scales linearly (the report counts a skipped default phase as failing).
     max_tick_s: float
 

@@ -22,14 +22,15 @@ Prints markdown tables; ``--json`` writes every number. Seven sections:
 * skips: what a scene does not need, each against the case that needs it, through
   ``CollisionNode._check`` (the node's whole tick without the transport), in this process.
 * sphere: the World's narrow phase with and without the bounding-sphere prefilter, here.
-* gaps: the World's tick (DESIGN's scene, here) back to back and after idle time of each kind
+* gaps: the World's tick (the --statics scene, here) back to back and after idle time of each kind
   (sleeping, busy-waiting, the caches flushed), interleaved: why sparse input ticks slower.
 * startup: node process start → first answer, with a fresh numba cache (cold) and again (warm),
   and warm with 100,000 dynamic sizes and 10,000 static colliders given as files.
 
 Scene: ``scenes.uniform(N)`` (about one colliding pair per body); by default all N bodies come
 in the PoseArray (the node's worst case: every pose parsed, stepped and drawn); ``--statics``
-gives the scene's static half to the node as ``static_colliders`` instead (DESIGN §5's scene).
+gives the scene's static half to the node as ``static_colliders`` instead (the scene of the
+performance targets, doc/benchmarks.md).
 """
 import argparse
 import contextlib
@@ -74,7 +75,7 @@ FRAME_DT_S = 1.0 / 60.0  # scene time between frames
 SETTLE_ANSWERS = 12    # answered inputs before a size is measured (auto settles in 8 ticks)
 STRAGGLER_S = 2.0      # after a run: time for answers still on their way
 READY_TIMEOUT_S = 300.0
-# The startup section's scene from files: DESIGN §5's "100,000 dynamic sizes + 10,000 statics".
+# The startup section's scene from files: the target's "100,000 dynamic sizes + 10,000 statics".
 FILE_SCENE_DYNAMIC = 100000
 FILE_SCENE_STATIC = 10000
 SKIP_TICKS = 30        # timed ticks per case of the skips section
@@ -88,7 +89,7 @@ GAPS = (('nothing (back to back)', 'none', 0.0), ('sleep 1 ms', 'sleep', 0.001),
         ('caches flushed', 'flush', 0.0))
 GAP_ROUNDS = 6
 GAP_TICKS_PER_ROUND = 8
-FLUSH_BYTES = 64 << 20  # written between ticks: twice the L3 cache of the EPYC machine (32 MB)
+FLUSH_BYTES = 64 << 20  # written between ticks: twice a 32 MB L3 cache
 
 
 class Plan(NamedTuple):
@@ -564,7 +565,7 @@ def sphere_section(plan):
 
 
 def gaps_section(plan):
-    """Time the World's stages after each kind of gap in GAPS (DESIGN's scene, statics set)."""
+    """Time the World's stages after each kind of gap in GAPS (the --statics scene)."""
     frames, static_poses, static_extents, extents = scene_input(plan.gap_bodies, statics=True)
     world = World()
     world.set_static(static_poses, static_extents)

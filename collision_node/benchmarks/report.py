@@ -5,11 +5,11 @@ import os
 
 from collision_node.benchmarks.stages import SETTLE_TICKS
 
-# DESIGN §5, in the order it lists them.
+# The performance targets, in the order doc/benchmarks.md lists them.
 FCL_TARGET_BODIES = 20000
 FCL_TARGET_RATIO = 40.0
 TICK_TARGETS_MS = ((10000, 2.0), (100000, 30.0))   # uniform scene, bodies: median ms
-STATIC_MOVES_BODIES = 10000  # DESIGN §5: 10 of 5,000 statics moved per tick, and all of them
+STATIC_MOVES_BODIES = 10000  # 10 of 5,000 statics moved per tick, and all of them
 STATIC_MOVES_MAX_RATIO = 1.1   # × the tick with none moved
 STATIC_MOVES_ALL_MAX_RATIO = 1.0  # × the tick with all of them dynamic
 SEED_SCENE_BODIES = 1024
@@ -43,7 +43,7 @@ def _plain(value):
 
 
 def targets(results):
-    """Each DESIGN §5 target: what was measured (default phase, and the best phase), pass/fail.
+    """Each performance target: what was measured (default phase, and the best phase), pass/fail.
 
     ``passed`` is None when this run did not measure the target.
     """
@@ -204,8 +204,9 @@ def markdown(results, plot_note):
            '-e .[bench]`).' % meta['command'], '',
            '- machine: %s, %s cores; %s' % (meta['cpu'], meta['cores'], ', '.join(
                '%s %s' % item for item in meta['versions'].items())),
-           '- commit %s, %s; plan `%s`, seed %d, %.0f s'
-           % (meta['commit'], meta['date'], meta['plan'], meta['seed'], meta['seconds']),
+           # The commit stays in results.json: the page describes the numbers, not a history.
+           '- %s; plan `%s`, seed %d, %.0f s'
+           % (meta['date'], meta['plan'], meta['seed'], meta['seconds']),
            '- broad phases: %s; the World default is `%s` with the sphere prefilter'
            % (', '.join(meta['broad_phases']), meta['default_phase']),
            '- a tick is one `World.step` (poses in, sorted contacts out) timed from outside; '
@@ -216,7 +217,7 @@ def markdown(results, plot_note):
         out += ['**Errors** (their rows say ERROR):', ''] + [
             '- %s' % error for error in meta['errors']] + ['']
 
-    out += ['## Targets (DESIGN §5)', '',
+    out += ['## Targets', '',
             table([('target', _get('target')), ('default phase', lambda r: r.get('phase')),
                    ('measured', _get('measured')),
                    ('pass', lambda r: {True: 'PASS', False: 'FAIL', None: 'n/a'}[r['passed']]),
@@ -227,8 +228,8 @@ def markdown(results, plot_note):
                   results['targets']), '']
 
     if 'paper001' in results:
-        out += ['## Paper 001: bodies flying out from the origin (its Table 2, every broad '
-                'phase)', '',
+        out += ['## "Discrete Collision Algorithms": bodies flying out from the origin (its '
+                'Table 2, every broad phase)', '',
                 'Cubes of half extent 0.5 m start packed around the origin and fly outward at '
                 '1-3 m/s: dense first, sparse later; no static bodies. %d ticks of %.4g s '
                 '(%.3g s simulated).' % (settings['flying_out_ticks'],
@@ -238,13 +239,13 @@ def markdown(results, plot_note):
                 table([('broad phase', _phase_label), ('bodies', _get('bodies'))] + TICK_COLUMNS,
                       results['paper001']), '']
     if 'octree_depths' in results:
-        out += ['## Paper 001: octree depth (its Table 1)', '',
+        out += ['## "Discrete Collision Algorithms": octree depth (its Table 1)', '',
                 table([('octree depth', _get('depth')), ('bodies', _get('bodies'))]
                       + TICK_COLUMNS, results['octree_depths']), '']
     if 'paper000' in results:
         rows = results['paper000']
         baseline = rows[0].get('average_tps') if rows else None
-        out += ['## Paper 000: 500 static + 500 dynamic boxes', '',
+        out += ['## "Engine Algorithms": 500 static + 500 dynamic boxes', '',
                 'Baseline = the SAT on every dynamic-static and dynamic-dynamic pair, as in '
                 'the paper; "sphere test" = bounding spheres, then the SAT; the octree at '
                 'depth 4, as in the paper.', '',
@@ -264,9 +265,10 @@ def markdown(results, plot_note):
         out += ['## Run time against error', '',
                 'Errors are pair-set differences against the float64 SAT on all pairs, summed '
                 'over the ticks. Modes: "every compared pair (classic)" calls every pair the '
-                'broad phase compared a collision (the classic octree of paper 001: every '
-                'pair sharing a leaf; counted as compared - true pairs); "broad phase only" '
-                'every candidate pair it returns (ours already drop pairs whose AABBs are '
+                'broad phase compared a collision (the classic octree of "Discrete Collision '
+                'Algorithms": every pair sharing a leaf; counted as compared - true pairs); '
+                '"broad phase only" every candidate pair it returns (ours already drop pairs '
+                'whose AABBs are '
                 'apart); "spheres only" / "AABBs only" the candidates whose bounding volumes '
                 'overlap; "SAT float32 boxes" the SAT on the boxes rounded to float32; "SAT '
                 'float64" the World as shipped. "compared", "true pairs" and the errors are sums '

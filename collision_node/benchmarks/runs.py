@@ -105,7 +105,7 @@ def run_world(scene, ticks, dt, limits, **world_options):
 
 
 def run_all_pairs_sat(scene, ticks, dt, limits):
-    """Paper 000's baseline: the SAT on every dynamic-static and dynamic-dynamic pair."""
+    """Run the baseline of "Engine Algorithms": the SAT on every pair with a dynamic body."""
     n_static = len(scene.static_poses)
     n_dynamic = scene.dynamic_count
     boxes = Boxes(n_static + n_dynamic)

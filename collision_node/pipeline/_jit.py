@@ -2,7 +2,7 @@
 
 Every kernel in the package is decorated with :func:`kernel`, so the flags cannot drift
 between modules. ``fastmath`` stays off everywhere: it lets LLVM assume no NaN/Inf, which
-turns ``np.isnan`` into ``False`` and reassociates the SAT's sums (DESIGN §4, §7).
+turns ``np.isnan`` into ``False`` and reassociates the SAT's sums (doc/accuracy.md).
 
 Cache. numba caches next to the sources when that directory is writable, else in the user's
 cache directory (~/.cache/numba), and NUMBA_CACHE_DIR overrides both. When none of them is

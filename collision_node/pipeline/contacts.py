@@ -1,12 +1,12 @@
 """Contacts: the reported pairs of a tick as one structured array, in the cloud's order.
 
-Fields, ids and order are those of the ``collisions`` PointCloud2 (README, "The collisions
-cloud"), with float64 instead of float32: body A is always dynamic; ``type`` is DYNAMIC (id =
-index in the PoseArray) or STATIC (id = the collider's id, set_static's ``ids``); two dynamic
-bodies come as id_a < id_b; rows are sorted by (id_a, type_b, id_b). A pair is reported when
-it collides (``distance`` = −``depth`` ≤ 0) or lies within its margin (``distance`` > 0,
-``depth`` 0). ``toi`` is the first time in the tick's interval [0, 1] at which the pair came
-within its margin (continuous.py); 1 when the World checks only this input's poses.
+Fields, ids and order are those of the ``collisions`` PointCloud2 (doc/design.md, "The collisions
+cloud"), with float64 instead of float32: body A is always dynamic; ``type`` is DYNAMIC (id = index
+in the PoseArray) or STATIC (id = the collider's id, set_static's ``ids``); two dynamic bodies come
+as id_a < id_b; rows are sorted by (id_a, type_b, id_b). A pair is reported when it collides
+(``distance`` = −``depth`` ≤ 0) or lies within its margin (``distance`` > 0, ``depth`` 0). ``toi``
+is the first time in the tick's interval [0, 1] at which the pair came within its margin
+(continuous.py); 1 when the World checks only this input's poses.
 """
 import numpy as np
 
@@ -29,10 +29,8 @@ CONTACT_DTYPE = np.dtype([
 # (a body usually touches a handful of others; a huge box may touch thousands).
 INSERTION_SORT_MAX = 32
 # Least candidate pairs per thread for the contacts to be assembled over threads, so that a
-# helper's dispatch (~50 µs) stays small beside its share. Measured on 2 threads, interleaved
-# in one process: 10,000 bodies (26,000 pairs) 0.98-0.99x and 20,000 bodies 0.94-0.97x the
-# tick with threads only from 32,768 pairs a thread. At 100,000 bodies the assembly takes
-# 4.7 ms on 2 threads (6.9 on one; 6.2 when each thread read every contact).
+# helper's dispatch (~50 µs) stays small beside its share; measured against 32,768 in
+# doc/benchmarks.md ("Threads").
 MIN_PAIRS_PER_THREAD = 8192
 
 

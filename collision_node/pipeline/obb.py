@@ -24,7 +24,7 @@ AABB_RELATIVE_MARGIN = 1e-12
 EPS = float(np.finfo(np.float64).eps)
 # Rounding in a pair's relative pose and projections is a few ulps of the magnitudes involved
 # (centres, extents); this many ulps of that scale is the touching tolerance: closer to
-# touching than that, a verdict may go either way (README, "Accuracy").
+# touching than that, a verdict may go either way (doc/accuracy.md).
 TIE_ULPS = 64.0
 
 # Positions and half extents beyond this many metres are rejected: no robot needs them (Earth's

@@ -106,14 +106,18 @@ def clustered(n, seed=0):
     return uniform(n, seed, clustered=True)
 
 
-# Paper 001: cubes start close to the origin heading outward, dense at first, sparse later.
+# "Discrete Collision Algorithms": cubes start close to the origin heading outward, dense at
+# first, sparse later.
 FLYING_OUT_HALF_EXTENT = 0.5   # m, cubes
 FLYING_OUT_START_RADIUS = 0.75  # m per cube root of the body count: starts densely packed
 FLYING_OUT_SPEED = (1.0, 3.0)  # m/s
 
 
 def flying_out(n, seed=0):
-    """Paper 001's scene: ``n`` dynamic cubes, no static ones, flying out from the origin."""
+    """Return the "Discrete Collision Algorithms" scene: ``n`` cubes flying out from the origin.
+
+    No static bodies; every cube is dynamic.
+    """
     rng = np.random.default_rng(seed)
     direction = rng.normal(size=(n, 3))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
@@ -131,7 +135,7 @@ def flying_out(n, seed=0):
 
 
 def paper000(n=1000, seed=0):
-    """Paper 000's scene: half static, half dynamic randomly oriented boxes (500 + 500)."""
+    """Return the "Engine Algorithms" scene: half static, half dynamic boxes (500 + 500)."""
     return uniform(n, seed)._replace(name='paper000')
 
 

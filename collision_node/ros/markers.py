@@ -1,4 +1,4 @@
-"""The `~/markers` MarkerArray (DESIGN §3) written as CDR bytes with numpy, never marker by marker.
+"""The `~/markers` MarkerArray (doc/design.md) written as CDR bytes with numpy, not one by one.
 
 rclpy converts a Marker object to CDR at ~13 µs each (130 ms at 10,000 bodies). Here every
 marker of one kind (static cube, dynamic cube, contact arrow) has the same bytes but for its

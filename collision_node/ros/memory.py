@@ -2,11 +2,10 @@
 
 glibc returns large freed blocks to the kernel (blocks over the mmap threshold are unmapped,
 and the heap's top is trimmed), so the next block of that size is fresh memory, and every page
-of it faults on first touch. A 440 KB cloud taken by rclpy cost 0.55 ms instead of 0.25 ms on
-this machine that way, and the 10,000-body latency (collision_latency) fell from 6.5 to 5.5 ms
-with this module's setting in both processes: the node's input, its output and Fast DDS's
-buffers reuse the same pages tick after tick. It is the ROS 2 real-time guidelines' advice
-(no trimming, no mmap for working-size blocks), applied with mallopt.
+of it faults on first touch, every tick, for the node's input, its output and Fast DDS's
+buffers. With this module's setting in both processes they reuse the same pages tick after
+tick (what that saves is measured in doc/benchmarks.md). It is the ROS 2 real-time
+guidelines' advice (no trimming, no mmap for working-size blocks), applied with mallopt.
 
 A process-wide setting, so it belongs to the process's owner: the node's ``main`` and the
 benchmarks call it; a process that hosts the node among others may call it too. Not glibc

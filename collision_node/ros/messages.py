@@ -1,4 +1,4 @@
-"""The `collisions` cloud (DESIGN §3): contacts to sensor_msgs/PointCloud2 and back.
+"""The `collisions` cloud (doc/design.md): contacts to sensor_msgs/PointCloud2 and back.
 
 One point per reported pair, height 1, little-endian, dense, point_step 48: FLOAT32
 ``x y z normal_x normal_y normal_z depth``, UINT32 ``id_a type_a id_b type_b``, then FLOAT32
@@ -17,7 +17,7 @@ from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.contacts import CONTACT_DTYPE
 from collision_node.ros.cdr import point_cloud_parts, POINT_FIELD_DATATYPES
 
-# The cloud keeps CONTACT_DTYPE's names and order; floats narrow to float32 as DESIGN §3 fixes
+# The cloud keeps CONTACT_DTYPE's names and order; floats narrow to float32 as doc/design.md fixes
 # (a step of 0.06 mm at 1 km from the origin), ids stay uint32.
 CLOUD_DTYPE = np.dtype([
     (name, '<f4' if CONTACT_DTYPE[name].kind == 'f' else '<u4') for name in CONTACT_DTYPE.names])

@@ -27,7 +27,7 @@ from collision_node.ros.diagnostics import LEVEL_NAMES, STATUS_SUFFIX
 from collision_node.ros.messages import cloud_to_contacts
 from collision_node.tools.processes import spin_until_finished
 
-BODY_TYPE_LETTERS = {0: 'd', 1: 's'}  # type 0 = dynamic, 1 = static (DESIGN §3)
+BODY_TYPE_LETTERS = {0: 'd', 1: 's'}  # type 0 = dynamic, 1 = static (doc/design.md)
 # A value's line breaks are written as \n: a value never continues on the next line. (A
 # rejection reason quotes the input's frame_id, which may hold anything.)
 LINE_BREAKS = str.maketrans({'\n': '\\n', '\r': '\\r'})

@@ -48,7 +48,7 @@ class PosePublisher(Node):
         self.first_stamp_ns = None
         self.finished = Future()
         # Reliable: a large PoseArray does not get through best-effort with Fast DDS's default
-        # transports. Newest only, as the node's input (DESIGN §3), when running on. A run of
+        # transports. Newest only, as the node's input (doc/design.md), when running on. A run of
         # ``count`` keeps them all, transient-local: DDS matches the two ends of a topic one
         # at a time, so a subscriber this writer already sees may not yet see this writer and
         # miss the first messages; a transient-local subscriber then still gets every one.

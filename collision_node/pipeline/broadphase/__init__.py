@@ -38,7 +38,7 @@ holds:
 
 The phases and when to use each: :mod:`~.brute_force`, :mod:`~.sphere`, :mod:`~.octree`,
 :mod:`~.kd_tree`, :mod:`~.sweep_and_prune`, :mod:`~.grid` and :mod:`~.auto` (their module
-docstrings; the numbers are in the README, "Broad phases").
+docstrings; doc/broad-phases.md; the numbers are in doc/benchmarks.md).
 """
 from numbers import Integral
 from typing import NamedTuple

@@ -1,6 +1,6 @@
 """``auto``: picks the broad phase per tick from the body count and spread, with hysteresis.
 
-Rule, from the measurements in the README ("Broad phases"):
+Rule, from the measurements in doc/benchmarks.md ("Which broad phase"):
 
 * brute force while it has fewer than ``BRUTE_FORCE_WORK`` pairs to compare (D·S + D(D-1)/2,
   about 60 bodies): its loop has no set-up cost and beats every structure there;

@@ -1,4 +1,4 @@
-"""k-d tree (paper 001): median splits on the widest axis, each node bounding its boxes.
+"""k-d tree ("Discrete Collision Algorithms"): median splits on the widest axis, node AABBs.
 
 Algorithm. The boxes are put in an order (``perm``) in which every node of an implicit binary
 tree owns a contiguous range: the root owns all, node k's children 2k+1 and 2k+2 own the two
@@ -19,7 +19,8 @@ rebuilding partitions again (O(n log n)). Refitting degrades as boxes move relat
 other: node boxes grow and overlap. So the tree refits every tick and rebuilds when its total
 node surface area, relative to the root's, has grown by ``REBUILD_AREA_RATIO`` since the last
 build (the surface area is the expected cost of a random query, the SAH idea). Measured here
-(CPU ms per tick of the broad phase, ``scenes`` of the benchmark, 2-core machine):
+(CPU ms per tick of the broad phase, ``scenes`` of the benchmark;
+``python test/broadphase_bench.py --study kd_tree``):
 
     scene (ticks measured)                   rebuild   refit only   refit, rebuild at 1.2
     seed scene, 1,024 bodies (300 at 60 Hz)    0.34       0.24        0.24 (1 build)

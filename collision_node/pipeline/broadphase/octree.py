@@ -1,7 +1,7 @@
-"""Octree (paper 000): a leaf-only octree with lazily created leaves and cooling empty leaves.
+"""Octree ("Engine Algorithms"): a leaf-only octree, leaves created lazily, empty ones cooling.
 
-Algorithm, as paper 000 describes it. The root cube is cut ``depth`` times into octants, but
-only the leaves exist ("leaf only"), and only those something touches: a leaf is created the
+Algorithm, as "Engine Algorithms" describes it. The root cube is cut ``depth`` times into octants,
+but only the leaves exist ("leaf only"), and only those something touches: a leaf is created the
 first time a box enters it, found again through a hash map keyed by its cell, and every box is
 referenced from every leaf it touches. Each tick:
 
@@ -25,10 +25,11 @@ border leaves: slower, never lost. The root cube covers the central ``ROOT_QUANT
 away does not stretch the tree over it.
 
 Depth: ``octree.max_depth`` when not 0, else chosen at each build by :func:`size_depth`:
-leaves about ``LEAF_SIDE_FACTOR`` mean AABB sides wide. Paper 001's rule L = min(6, log2(n) -
-4) (:func:`paper_depth`, available as ``Octree(settings, depth_rule='paper')``) was the
-starting point. Measured (CPU ms per tick of the broad phase; depth chosen in brackets; the
-best fixed depth found by trying 2..7):
+leaves about ``LEAF_SIDE_FACTOR`` mean AABB sides wide. The rule of "Discrete Collision
+Algorithms", L = min(6, log2(n) - 4) (:func:`paper_depth`, available as
+``Octree(settings, depth_rule='paper')``) was the starting point. Measured (CPU ms per tick of
+the broad phase; depth chosen in brackets; the best fixed depth found by trying 2..7;
+``python test/broadphase_bench.py --study octree``):
 
     scene, bodies          paper rule    size rule     best fixed depth
     uniform, 1,024         3.10 (6)      0.43 (4)      0.40 (4)
@@ -49,7 +50,7 @@ consequence, brute force's pairs, over hundreds of ticks of bodies coming, going
 
 When to use: as the paper's reference and where bodies stay in their leaves for many ticks
 (slow motion, many static boxes). The hashed grid does the same job without a root cube or
-per-body bookkeeping and is faster on every scene measured here (README, "Broad phases").
+per-body bookkeeping and is faster on every scene measured (doc/benchmarks.md).
 """
 import math
 from typing import NamedTuple
@@ -67,10 +68,11 @@ from collision_node.pipeline.obb import aabbs_overlap, overlap_across
 NULL = -1  # no leaf, no entry
 NO_COPIES = np.zeros((0, 2, 3))  # keeps_cells: the octree reads the boxes' own AABBs
 
-# Paper 001's depth rule L = min(PAPER_MAX_DEPTH, log2(n) - PAPER_DEPTH_OFFSET).
+# The depth rule of "Discrete Collision Algorithms": L = min(PAPER_MAX_DEPTH, log2(n) -
+# PAPER_DEPTH_OFFSET).
 PAPER_MAX_DEPTH = 6
 PAPER_DEPTH_OFFSET = 4
-# The size rule (the default, measured better: README, "Broad phases"): leaves of about
+# The size rule (the default, measured better: see the module docstring): leaves of about
 # LEAF_SIDE_FACTOR mean AABB sides, like the grid's cells, at most MAX_DEPTH levels.
 LEAF_SIDE_FACTOR = 1.5
 MAX_DEPTH = 10
@@ -160,7 +162,7 @@ def new_state(leaves, entries, bodies, statics, static_entries):
 
 
 def paper_depth(n_bodies, root_side, mean_side):
-    """Paper 001's rule L = min(6, log2(n) - 4) for dense scenes, rounded down, >= 0."""
+    """Return the depth rule of "Discrete Collision Algorithms": min(6, log2(n) - 4), >= 0."""
     return max(0, min(PAPER_MAX_DEPTH,
                       int(math.floor(math.log2(max(n_bodies, 1)))) - PAPER_DEPTH_OFFSET))
 
@@ -168,7 +170,7 @@ def paper_depth(n_bodies, root_side, mean_side):
 def size_depth(n_bodies, root_side, mean_side):
     """Return the depth whose leaves are closest to ``LEAF_SIDE_FACTOR`` mean AABB sides.
 
-    Paper 001's rule grows with log2(n), but in a scene of constant density the root side
+    The papers' rule grows with log2(n), but in a scene of constant density the root side
     grows as n^(1/3), so the best depth grows three times slower; and the rule ignores the
     body size, which is what sets how many leaves a body touches.
     """

@@ -1,4 +1,4 @@
-"""Sweep and prune (paper 001): boxes sorted by their lower bound on one axis, swept once.
+"""Sweep and prune ("Discrete Collision Algorithms"): boxes sorted by their lower bound, swept.
 
 Algorithm. The dynamic boxes are kept sorted by the lower bound of their AABB on the sweep
 axis, with a copy of their AABBs in that order so the sweep reads memory sequentially. Each
@@ -9,8 +9,9 @@ box starts first scans the other list, so each dynamic-static pair is met exactl
 static boxes never meet each other.
 
 Axis: the one along which the box centres (dynamic and static) spread most (variance), the
-choice of Liu et al. 2010 cited by paper 001; the axis changes only when another one spreads
-``AXIS_SWITCH_RATIO`` times more, so a scene near a tie does not re-sort every tick.
+choice of Liu et al. 2010 cited by "Discrete Collision Algorithms"; the axis changes only when
+another one spreads ``AXIS_SWITCH_RATIO`` times more, so a scene near a tie does not re-sort
+every tick.
 
 Coherence: between ticks boxes move little, so last tick's order is nearly sorted and an
 insertion sort repairs it in about O(n + moves). When it needs more than
