@@ -1,8 +1,8 @@
 """Compile progress: a line at the first compile, then one a period with a count and an estimate.
 
 The lines are checked on numba's own compile events, in processes with an empty cache (two
-small kernels; the node's whole warm-up under the ``slow`` marker), and their arithmetic on a scripted
-sequence of events with a stand-in clock.
+small kernels; the node's whole warm-up under the ``slow`` marker), and their arithmetic on a
+scripted sequence of events with a stand-in clock.
 """
 import os
 import pathlib
