@@ -79,9 +79,9 @@ SWEPT = 'on'
 # (~75 ns a pair) against the ~10-50 µs a helper's dispatch costs.
 MIN_PAIRS_PER_CHUNK = 2048
 # From this many boxes (static and dynamic rows) the candidate pairs are sorted by row before
-# the SAT (contacts.orient_pairs): against the grid's order, 3 ms less SAT at 100,000 bodies and
-# 0.3 ms less at 20,000 for a sort of 0.8 and 0.12 ms; at 10,000 the boxes fit in the caches
-# and the sort only costs (AMD EPYC machine, 1 MB of L2 per core).
+# the SAT (contacts.orient_pairs): once the boxes' arrays outgrow the L2 cache, the SAT reading
+# each box's data together saves more than the sort costs; below, the sort only costs
+# (doc/benchmarks.md, "Threads").
 SORT_PAIRS_ROWS = 16384
 # Least bodies in a chunk when their boxes are written over threads: ~35 ns a body (more at
 # 100,000 bodies, whose rows leave the caches), so ~0.3 ms a chunk.

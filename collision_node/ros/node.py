@@ -1,4 +1,4 @@
-"""The collision_node ROS 2 node: dynamic poses in, colliding pairs out (DESIGN §3).
+"""The collision_node ROS 2 node: dynamic poses in, colliding pairs out (doc/design.md).
 
 A thin layer over :class:`~collision_node.pipeline.world.World`: it reads the PoseArray as raw
 CDR bytes (numpy, no per-pose Python), checks the input against the parameters, steps the World and
@@ -63,7 +63,7 @@ from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.memory import keep_heap_memory
 from collision_node.ros.messages import CloudWriter
 
-# Newest input wins (DESIGN §3); reliable, because Fast DDS delivers nothing best-effort once a
+# Newest input wins (doc/design.md, "Topics"); reliable, because Fast DDS delivers nothing best-effort once a
 # PoseArray passes ~512 KB. Overridable through the qos_overrides.* parameters.
 INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.RELIABLE,

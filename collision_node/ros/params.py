@@ -1,4 +1,4 @@
-"""The node's parameters (DESIGN §3): the table, their validation and their declaration.
+"""The node's parameters (doc/parameters.md): the table, their validation and declaration.
 
 Validation is plain Python on plain values, so tests call it without ROS:
 
@@ -25,7 +25,7 @@ from collision_node.pipeline.filters import (ALL_CATEGORIES, collision_bits, DEF
 from collision_node.pipeline.obb import MAX_COORDINATE, QUATERNION_NORM_TOLERANCE
 from collision_node.pipeline.world import DYNAMIC, STATIC, World
 
-# Type names as in the DESIGN table; declare() maps them to rclpy's Parameter.Type.
+# Type names as in doc/parameters.md; declare() maps them to rclpy's Parameter.Type.
 STRING, BOOL, INTEGER, DOUBLE = 'string', 'bool', 'integer', 'double'
 DOUBLE_ARRAY, STRING_ARRAY, INTEGER_ARRAY = 'double[]', 'string[]', 'integer[]'
 
@@ -124,7 +124,7 @@ class Collider(NamedTuple):
 
     ``static_id`` is its id in the `collisions` cloud: its index in the list at start, the next
     unused id for a collider added later; it never changes while the collider exists and is
-    never given to another one (README, "The collisions cloud").
+    never given to another one (doc/design.md, "The collisions cloud").
     """
 
     name: str
