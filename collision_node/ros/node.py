@@ -63,8 +63,9 @@ from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.memory import keep_heap_memory
 from collision_node.ros.messages import CloudWriter
 
-# Newest input wins (doc/design.md, "Topics"); reliable, because Fast DDS delivers nothing best-effort once a
-# PoseArray passes ~512 KB. Overridable through the qos_overrides.* parameters.
+# Newest input wins (doc/design.md, "Topics"); reliable, because Fast DDS delivers nothing
+# best-effort once a PoseArray passes ~512 KB. Overridable through the qos_overrides.*
+# parameters.
 INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
