@@ -13,7 +13,8 @@ imported on first use, so ``from collision_node import World`` never loads ROS.
 """
 import importlib
 
-from collision_node.pipeline.world import CONTACT_DTYPE, DYNAMIC, Result, STATIC, warm_up, World
+from collision_node.pipeline.warm_up import warm_up
+from collision_node.pipeline.world import CONTACT_DTYPE, DYNAMIC, Result, STATIC, World
 
 _ROS_NAMES = {
     'cloud_to_contacts': 'collision_node.ros.messages',

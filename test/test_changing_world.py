@@ -89,15 +89,15 @@ def run(names, ticks, seed, margin=0.0, continuous=False):
             for world in worlds.values():
                 world.set_static(*_set_static_args(scene))
         else:
-            poses, extents, _ = scene.static()
+            poses, extents, ids = scene.static()
             for world in worlds.values():
-                world.move_static(poses, extents)
+                world.move_static(ids, poses, extents)
         fresh = World(broad_phase='brute_force', margin=margin, continuous=continuous)
         fresh.set_static(*_set_static_args(scene))
         if previous is not None:
             fresh.step(previous, scene.dynamic_extents)
         expected = fresh.step(scene.dynamic_poses, scene.dynamic_extents).contacts
-        loose = {name: len(world._loose_rows) for name, world in worlds.items()}
+        loose = {name: len(world._loose.rows) for name, world in worlds.items()}
         yield tick, expected, {name: world.step(scene.dynamic_poses, scene.dynamic_extents)
                                for name, world in worlds.items()}, loose
         if continuous:
@@ -142,21 +142,21 @@ def test_static_changes_take_the_loose_path_and_the_rebuild_path():
     world.set_static(*_set_static_args(scene)[:3])
     world.step(scene.dynamic_poses, scene.dynamic_extents)
     builds = world._phase.stats['static_builds']
-    poses, extents, _ = scene.static()
+    poses, extents, ids = scene.static()
     poses = poses.copy()
     poses[:2, 0] += 1e-3  # two boxes, within their cells: the grid refreshes its copies
-    assert world.move_static(poses, extents) == 2
-    assert world.move_static(poses, extents) == 0  # unchanged: nothing to do
-    assert not len(world._loose_rows)
+    assert world.move_static(ids, poses, extents) == 2
+    assert world.move_static(ids, poses, extents) == 0  # unchanged: nothing to do
+    assert not len(world._loose.rows)
     poses[:2, 0] += 3.0  # into other cells: loose, the grid's table stays
-    assert world.move_static(poses, extents) == 2
+    assert world.move_static(ids, poses, extents) == 2
     world.step(scene.dynamic_poses, scene.dynamic_extents)
     assert world._phase.stats['static_builds'] == builds
-    assert len(world._loose_rows) == 2
+    assert len(world._loose.rows) == 2
     poses[:, 0] += 3.0  # all of them: loose, they soon cost more than a rebuild
-    world.move_static(poses, extents)
+    world.move_static(ids, poses, extents)
     ticks = 0
-    while len(world._loose_rows) and ticks < 10:
+    while len(world._loose.rows) and ticks < 10:
         assert world._phase.stats['static_builds'] == builds
         ticks += 1
         world.step(scene.dynamic_poses + [1e-6 * ticks, 0, 0, 0, 0, 0, 0],
@@ -182,12 +182,14 @@ def test_a_still_body_meets_a_static_box_that_moved_to_it(name):
     world = two_boxes_world(name)
     assert len(world.step(DYNAMIC, SIZE).contacts) == 0
     # The dynamic bodies keep their pose: the step must not reuse the last (empty) answer.
-    world.move_static([[2.5, 0.0, 0.0] + IDENTITY, [10.0, 0.0, 0.0] + IDENTITY], [SIZE] * 2)
+    world.move_static([4, 9], [[2.5, 0.0, 0.0] + IDENTITY, [10.0, 0.0, 0.0] + IDENTITY],
+                      [SIZE] * 2)
     contacts = world.step(DYNAMIC, SIZE).contacts
     assert [(c['id_a'], c['id_b']) for c in contacts] == [(0, 4)]
     assert contacts[0]['depth'] == pytest.approx(0.5)
     # Moved away again while the body stays: the contact is gone, not kept from the last step.
-    world.move_static([[0.0, 0.0, 0.0] + IDENTITY, [10.0, 0.0, 0.0] + IDENTITY], [SIZE] * 2)
+    world.move_static([4, 9], [[0.0, 0.0, 0.0] + IDENTITY, [10.0, 0.0, 0.0] + IDENTITY],
+                      [SIZE] * 2)
     assert len(world.step(DYNAMIC, SIZE).contacts) == 0
 
 
@@ -196,14 +198,14 @@ def test_a_still_body_sees_a_static_box_grow_shrink_and_come_back(name):
     world = two_boxes_world(name)
     world.step(DYNAMIC, SIZE)
     poses = [[0.0, 0.0, 0.0] + IDENTITY, [10.0, 0.0, 0.0] + IDENTITY]
-    world.move_static(poses, [[2.7, 0.5, 0.5], SIZE])  # grows into both bodies
+    world.move_static([4, 9], poses, [[2.7, 0.5, 0.5], SIZE])  # grows into both bodies
     contacts = world.step(DYNAMIC, SIZE).contacts
     assert [(c['id_a'], c['id_b']) for c in contacts] == [(0, 4), (1, 4)]
     assert contacts['depth'] == pytest.approx([0.2, 0.2])
     # Half the bodies move: the still one keeps its contact only while the box is unchanged.
     moved = DYNAMIC.copy()
     moved[1, 0] = -3.1
-    world.move_static(poses, [[2.6, 0.5, 0.5], SIZE])
+    world.move_static([4, 9], poses, [[2.6, 0.5, 0.5], SIZE])
     contacts = world.step(moved, SIZE).contacts
     assert contacts['depth'] == pytest.approx([0.1, 0.0])
     # Disabled (left out of the statics), then enabled again, the bodies still.
@@ -219,25 +221,26 @@ def test_invalid_static_moves_change_nothing():
     before = world.step(DYNAMIC, SIZE).contacts.copy()
     good = [[2.5, 0.0, 0.0] + IDENTITY, [10.0, 0.0, 0.0] + IDENTITY]
     bad = [[2.5, 0.0, 0.0] + IDENTITY, [np.nan, 0.0, 0.0] + IDENTITY]
-    with pytest.raises(InvalidBox, match='body 1: pose has a NaN') as error:
-        world.move_static(bad)
+    with pytest.raises(InvalidBox, match='static id 9: pose has a NaN') as error:
+        world.move_static([4, 9], bad)
     assert error.value.body == 1
     with pytest.raises(ValueError, match=r'need shape \(2, 7\)'):
-        world.move_static(good[:1])
-    with pytest.raises(ValueError, match='body 0: half extents'):
-        world.move_static(good, [[-1.0, 0.5, 0.5], SIZE])
+        world.move_static([4, 9], good[:1])
+    with pytest.raises(ValueError, match='static id 4: half extents'):
+        world.move_static([4, 9], good, [[-1.0, 0.5, 0.5], SIZE])
     with pytest.raises(ValueError, match=r'need shape \(2, 3\)'):
-        world.move_static(good, [SIZE])
+        world.move_static([4, 9], good, [SIZE])
     assert world.step(DYNAMIC + [1e-9, 0, 0, 0, 0, 0, 0], SIZE).contacts.tobytes() == \
         before.tobytes()
-    assert world.move_static(good) == 1
+    assert world.move_static([4, 9], good) == 1
     assert contact_ids(world.step(DYNAMIC, SIZE)).tolist() == [[0, 1, 4]]
 
 
 def test_a_new_margin_keeps_the_moved_poses():
     world = two_boxes_world('kd_tree')
     world.step(DYNAMIC, SIZE)
-    world.move_static([[1.9, 0.0, 0.0] + IDENTITY, [10.0, 0.0, 0.0] + IDENTITY], [SIZE] * 2)
+    world.move_static([4, 9], [[1.9, 0.0, 0.0] + IDENTITY, [10.0, 0.0, 0.0] + IDENTITY],
+                      [SIZE] * 2)
     world.margin = 0.2  # set_static again from the World's own copy, moved pose included
     contacts = world.step(DYNAMIC, SIZE).contacts
     assert [(c['id_b'], round(float(c['distance']), 9)) for c in contacts] == [(4, 0.1)]

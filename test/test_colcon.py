@@ -22,7 +22,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
-from collision_node.pipeline.world import warm_up
+from collision_node.pipeline.warm_up import warm_up
 from collision_node.ros.cdr import serialize_pose_array
 from collision_node.ros.messages import cloud_to_contacts
 

@@ -18,12 +18,13 @@ import math
 import numpy as np
 import pytest
 
+from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.contacts import DYNAMIC, STATIC
 from collision_node.pipeline.continuous import CONTINUOUS_TOLERANCE
 from collision_node.pipeline.obb import Boxes, set_boxes
 from collision_node.pipeline.sat import collide_pairs, COLLIDING, INVALID, NEAR
 from collision_node.pipeline.scenes import uniform
-from collision_node.pipeline.world import NAMES, World
+from collision_node.pipeline.world import World
 
 SAMPLES = 10000        # sub-steps of a tick's interval
 CHUNK = 1000           # samples evaluated at once
@@ -278,7 +279,7 @@ def test_swept_bounds_hold_every_pose_in_between(seed):
     world = motion.world()
     world.step(motion.start, motion.extents)
     world.step(motion.end, motion.extents)
-    rows = world._dynamic_rows  # the World's row of each body
+    rows = world._dynamic.rows  # the World's row of each body
     bounds = world._boxes.aabbs[rows]
     boxes = Boxes(len(motion.start))
     for t in np.linspace(0.0, 1.0, 1001):

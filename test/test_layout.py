@@ -94,9 +94,17 @@ def test_the_pipeline_runs_without_ros():
     assert done.stdout.strip() == '[]'
 
 
+def test_the_core_does_not_import_the_test_scenes():
+    """Only benchmarks, tools and tests use pipeline/scenes.py; the pipeline's own code never."""
+    users = [path.name for path in sorted((PACKAGE / 'pipeline').glob('**/*.py'))
+             if 'collision_node.pipeline.scenes' in imported_modules(path.read_text())]
+    assert users == []
+
+
 def test_public_names():
     import collision_node
-    from collision_node.pipeline.world import World, warm_up
+    from collision_node.pipeline.warm_up import warm_up
+    from collision_node.pipeline.world import World
     from collision_node.ros.cdr import serialize_pose_array
     from collision_node.ros.messages import cloud_to_contacts
     assert collision_node.World is World and collision_node.warm_up is warm_up

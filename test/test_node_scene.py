@@ -14,10 +14,10 @@ from rcl_interfaces.srv import SetParameters, SetParametersAtomically
 from rclpy.parameter import Parameter
 from ros_helpers import check_room_contacts, COLLIDERS, EXPECTED, INPUT, room_poses, values
 
+from collision_node.benchmarks.params_files import write_scene_files
 from collision_node.pipeline.world import DYNAMIC, STATIC
 from collision_node.ros.cdr import serialize_pose_array
 from collision_node.ros.messages import cloud_to_contacts
-from collision_node.ros.params import write_scene_files
 
 DOMAIN_ID = random.Random(os.getpid() + 19).randint(1, 200)
 STATIC_POSES = np.array([pose for pose, _ in COLLIDERS.values()])  # floor, wall, crate

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from ros_helpers import BAD_YAML, GOOD_YAML, run_node, write_params
 
+from collision_node.benchmarks import params_files
 from collision_node.pipeline.contacts import DYNAMIC as DYNAMIC_TYPE, STATIC as STATIC_TYPE
 from collision_node.ros import params
 from collision_node.ros.params import ParameterError
@@ -88,6 +89,17 @@ BAD = {
 }
 
 
+def enabled_scene(parsed):
+    """Return the enabled colliders' poses, sizes, ids, margins, categories and masks."""
+    on = [c for c in parsed.colliders if c.enabled]
+    return (np.array([c.pose for c in on]).reshape(-1, 7),
+            np.array([c.half_extents for c in on]).reshape(-1, 3),
+            np.array([c.static_id for c in on], np.int64),
+            np.array([c.margin for c in on], np.float64),
+            np.array([c.collision_category for c in on], np.int64),
+            np.array([c.collision_mask for c in on], np.int64))
+
+
 def test_defaults_are_the_design_table():
     parsed = params.parse({})
     assert parsed.frame_id == 'world' and parsed.broad_phase == 'auto'
@@ -99,7 +111,7 @@ def test_defaults_are_the_design_table():
             parsed.diagnostic_period_s) == (0.0, 1.0, 100000, 1, 1.0)
     assert parsed.margin == 0.0 and parsed.ignored_pairs == []
     assert parsed.dynamic_collision_category == [1] and parsed.dynamic_collision_mask == [-1]
-    poses, extents, ids, margins, categories, masks = parsed.static_scene()
+    poses, extents, ids, margins, categories, masks = enabled_scene(parsed)
     assert poses.shape == (0, 7) and extents.shape == (0, 3) and ids.shape == (0,)
     assert margins.shape == categories.shape == masks.shape == (0,)
 
@@ -110,10 +122,9 @@ def test_named_colliders_keep_their_list_index():
     np.testing.assert_array_equal(parsed.colliders[1].pose, SHELF['shelf.pose'])
     np.testing.assert_array_equal(parsed.colliders[0].half_extents, [0.6, 0.4, 0.02])
     assert [c.enabled for c in parsed.colliders] == [True, False]
-    poses, extents, ids, margins, categories, masks = params.parse(
+    poses, extents, ids, margins, categories, masks = enabled_scene(params.parse(
         dict(GOOD, static_colliders=['shelf', 'table'], **{'shelf.enabled': True,
-                                                           'table.enabled': False})
-    ).static_scene()
+                                                           'table.enabled': False})))
     assert ids.tolist() == [0]  # table is disabled; the shelf keeps index 0
     assert (margins.tolist(), categories.tolist(), masks.tolist()) == ([0.0], [1], [-1])
     np.testing.assert_array_equal(poses[0], SHELF['shelf.pose'])
@@ -270,7 +281,7 @@ def test_static_scene_file(tmp_path):
     assert [c.name for c in parsed.colliders] == ['box0', 'box1', 'box2', 'box3', 'box4',
                                                   'table', 'shelf']
     assert [c.static_id for c in parsed.colliders] == list(range(7))
-    poses, extents, ids, margins, categories, masks = parsed.static_scene()
+    poses, extents, ids, margins, categories, masks = enabled_scene(parsed)
     assert ids.tolist() == [0, 2, 3, 4, 5]  # box1 and the shelf are disabled
     np.testing.assert_array_equal(poses[:4], contents['poses'][[0, 2, 3, 4]])
     np.testing.assert_array_equal(extents[:4], contents['half_extents'][[0, 2, 3, 4]])
@@ -466,13 +477,14 @@ def test_scene_parameters_parse_back_to_the_scene(tmp_path):
     rng = np.random.default_rng(3)
     poses = np.concatenate([rng.normal(size=(4, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (4, 1))], 1)
     extents = rng.uniform(0.1, 0.5, (4, 3))
-    values = params.scene_parameters(poses, extents, [0.2, 0.2, 0.2], broad_phase='grid',
-                                     **{'diagnostic_updater.period': 0.5})
+    values = params_files.scene_parameters(poses, extents, [0.2, 0.2, 0.2], broad_phase='grid',
+                                           **{'diagnostic_updater.period': 0.5})
     parsed = params.parse(values)
     assert [c.name for c in parsed.colliders] == ['s0', 's1', 's2', 's3']
     np.testing.assert_array_equal([c.pose for c in parsed.colliders], poses)
     np.testing.assert_array_equal([c.half_extents for c in parsed.colliders], extents)
     assert (parsed.broad_phase, parsed.diagnostic_period_s) == ('grid', 0.5)
     path = tmp_path / 'scene.yaml'
-    params.write_params_file(path, params.scene_parameters(poses[:0], extents[:0], [0.1] * 3))
+    params_files.write_params_file(path, params_files.scene_parameters(poses[:0], extents[:0],
+                                                                       [0.1] * 3))
     assert 'static_colliders' not in path.read_text()  # an empty list has no type

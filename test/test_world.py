@@ -5,9 +5,10 @@ import pytest
 from collision_node import CONTACT_DTYPE, DYNAMIC, STATIC, World
 from collision_node.pipeline import world as world_module
 from collision_node.pipeline.broadphase import NAMES
-from collision_node.pipeline.obb import QUATERNION_NORM_TOLERANCE
+from collision_node.pipeline.obb import MAX_COORDINATE, QUATERNION_NORM_TOLERANCE
 from collision_node.pipeline.scenes import uniform
-from collision_node.pipeline.world import _z_order, MAX_COORDINATE, Z_ORDER_BITS, Z_ORDER_MIN_TICKS
+from collision_node.pipeline.world import Z_ORDER_MIN_TICKS
+from collision_node.pipeline.z_order import z_order, Z_ORDER_BITS
 
 IDENTITY = [0.0, 0.0, 0.0, 1.0]
 
@@ -138,7 +139,7 @@ def test_z_order_matches_a_naive_reference():
     points[31, 1] = np.inf
     points[32, 2] = -1e300
     for part in (points[:0], points[:1], points[:29], points):
-        assert _z_order(part).tolist() == naive_z_order(part)
+        assert z_order(part).tolist() == naive_z_order(part)
 
 
 @pytest.mark.parametrize('phase', NAMES)
@@ -156,7 +157,7 @@ def test_rows_are_sorted_again_once_the_bodies_travel(phase):
         if tick >= Z_ORDER_MIN_TICKS:  # then the bodies travel 3 m every tick
             poses[:, 0] += 3.0 * (tick - Z_ORDER_MIN_TICKS + 1)
         result = world.step(poses, scene.dynamic_half_extents)
-        rows.append(world._dynamic_ids.copy())
+        rows.append(world._dynamic.ids.copy())
         if tick % 7 == 0 or tick in (Z_ORDER_MIN_TICKS, 2 * Z_ORDER_MIN_TICKS):
             fresh = World(broad_phase='brute_force')
             fresh.set_static(scene.static_poses, scene.static_half_extents)
@@ -261,7 +262,7 @@ def test_invalid_half_extents_are_rejected(extents, message):
 def test_invalid_static_leaves_the_world_unchanged():
     world = World(broad_phase='brute_force')
     world.set_static([pose(0.0)], [1.0, 1.0, 1.0])
-    with pytest.raises(ValueError, match='static body 1'):
+    with pytest.raises(ValueError, match='static id 1'):
         world.set_static([pose(5.0), pose(np.nan)], [1.0, 1.0, 1.0])
     assert world.static_count == 1
     assert contact_keys(world.step([pose(0.5)], [0.1, 0.1, 0.1]).contacts) == [(0, STATIC, 0)]

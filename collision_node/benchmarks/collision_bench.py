@@ -28,7 +28,8 @@ from collision_node.benchmarks.runs import (
 from collision_node.benchmarks.stages import profile_stages
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import make_scene
-from collision_node.pipeline.world import warm_up, World
+from collision_node.pipeline.warm_up import warm_up
+from collision_node.pipeline.world import World
 
 OCTREE_DEPTHS = tuple(range(1, 10))  # Table 1 of "Discrete Collision Algorithms"
 PAPER000_OCTREE_DEPTH = 4            # the octree of "Engine Algorithms" ran at depth 4
@@ -597,7 +598,7 @@ def _moved_statics(scene, rows, amplitude, k):
 def _move_static_and_step(world):
     """Return a tick that moves ``world``'s static boxes, then steps it."""
     def tick(static_poses, poses, half_extents):
-        world.move_static(static_poses)
+        world.move_static(np.arange(len(static_poses)), static_poses)
         return world.step(poses, half_extents)
     return tick
 

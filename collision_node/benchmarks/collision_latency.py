@@ -54,6 +54,8 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 
+from collision_node.benchmarks.params_files import (scene_parameters, write_params_file,
+                                                    write_scene_files)
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import uniform, UNIFORM_HALF_EXTENTS
 from collision_node.pipeline.world import World
@@ -62,7 +64,6 @@ from collision_node.ros.cdr import ENCAPSULATION_SIZE, serialize_pose_array
 from collision_node.ros.memory import keep_heap_memory
 from collision_node.ros.messages import CloudWriter, contacts_to_cloud
 from collision_node.ros.node import CollisionNode, INPUT_QOS, OUTPUT_QOS  # the node's own QoS
-from collision_node.ros.params import scene_parameters, write_params_file, write_scene_files
 from collision_node.tools.processes import stop_process
 
 STATUS_NAME = 'collision_node: collision_check'

@@ -36,10 +36,10 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import PointCloud2
 
+from collision_node.benchmarks.params_files import scene_parameters, write_params_file
 from collision_node.pipeline.scenes import make_scene, SCENES
 from collision_node.ros.cdr import ENCAPSULATION_SIZE, serialize_pose_array
 from collision_node.ros.node import INPUT_QOS  # the node's own input QoS
-from collision_node.ros.params import scene_parameters, write_params_file
 from collision_node.tools.processes import stop_process
 
 STATUS_NAME = 'collision_node: collision_check'

@@ -17,7 +17,8 @@ import numpy as np
 from collision_node.benchmarks.collision_bench import machine
 from collision_node.pipeline.sat import collide_pairs, COLLIDING, empty_output
 from collision_node.pipeline.scenes import uniform
-from collision_node.pipeline.world import warm_up, World
+from collision_node.pipeline.warm_up import warm_up
+from collision_node.pipeline.world import World
 
 SETTLE_TICKS = 10
 

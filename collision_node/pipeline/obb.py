@@ -6,6 +6,7 @@ axis-aligned bounding box (2, 3) = (min corner, max corner) and the radius of it
 sphere. Everything is float64.
 """
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -56,18 +57,29 @@ class InvalidBox(ValueError):
         self.reason = reason
 
 
-class Boxes:
-    """Preallocated structure-of-arrays storage for ``capacity`` boxes."""
+class _BoxArrays(NamedTuple):
+    centers: np.ndarray       # (N, 3)
+    rotations: np.ndarray     # (N, 3, 3), columns are the box axes
+    half_extents: np.ndarray  # (N, 3)
+    aabbs: np.ndarray         # (N, 2, 3) min and max corner
+    radii: np.ndarray         # (N,) bounding sphere radius
+    # A box's own safety margin (a static collider's ``margin``; 0 for dynamic bodies): the
+    # SAT adds both boxes' to the World's margin.
+    margins: np.ndarray       # (N,)
 
-    def __init__(self, capacity):
-        self.centers = np.zeros((capacity, 3))
-        self.rotations = np.zeros((capacity, 3, 3))
-        self.half_extents = np.zeros((capacity, 3))
-        self.aabbs = np.zeros((capacity, 2, 3))
-        self.radii = np.zeros(capacity)
-        # A box's own safety margin (a static collider's ``margin``; 0 for dynamic bodies):
-        # the SAT adds both boxes' to the World's margin.
-        self.margins = np.zeros(capacity)
+
+class Boxes(_BoxArrays):
+    """Preallocated structure-of-arrays storage for ``capacity`` boxes.
+
+    A named tuple of flat arrays, so that kernels take the boxes as one argument.
+    """
+
+    __slots__ = ()
+
+    def __new__(cls, capacity):
+        return super().__new__(cls, np.zeros((capacity, 3)), np.zeros((capacity, 3, 3)),
+                               np.zeros((capacity, 3)), np.zeros((capacity, 2, 3)),
+                               np.zeros(capacity), np.zeros(capacity))
 
     @property
     def capacity(self):
@@ -76,8 +88,8 @@ class Boxes:
     def grown(self, capacity, keep):
         """Return storage for ``capacity`` boxes holding a copy of the first ``keep``."""
         bigger = Boxes(capacity)
-        for name in ('centers', 'rotations', 'half_extents', 'aabbs', 'radii', 'margins'):
-            getattr(bigger, name)[:keep] = getattr(self, name)[:keep]
+        for mine, theirs in zip(self, bigger):
+            theirs[:keep] = mine[:keep]
         return bigger
 
 
@@ -88,6 +100,31 @@ def set_boxes(boxes, start, poses, half_extents, rows=None):
     of range(N). Raises InvalidBox (a ValueError) naming the first invalid body (index within
     ``poses``) and why.
     """
+    poses, half_extents = _as_inputs(poses, half_extents)
+    if start + len(poses) > boxes.capacity:
+        raise ValueError('storage holds %d boxes, %d needed' % (boxes.capacity,
+                                                                start + len(poses)))
+    if rows is None:
+        rows = np.arange(len(poses))
+    bad, code = _write_boxes(poses, half_extents, start, rows, boxes)
+    if bad >= 0:
+        raise InvalidBox(bad, REASONS[code])
+
+
+def check_boxes(poses, half_extents):
+    """Raise InvalidBox naming the first body of ``poses`` that set_boxes would refuse.
+
+    Returns the inputs as set_boxes reads them: poses (N, 7) and half extents (N, 3).
+    """
+    poses, half_extents = _as_inputs(poses, half_extents)
+    bad, code = _first_problem(poses, half_extents)
+    if bad >= 0:
+        raise InvalidBox(bad, REASONS[code])
+    return poses, half_extents
+
+
+def _as_inputs(poses, half_extents):
+    """Return poses (N, 7) and half extents (N, 3) as float64 C arrays; ValueError on shapes."""
     poses = np.require(poses, np.float64, ['C', 'A', 'W'])
     if poses.ndim != 2 or poses.shape[1] != 7:
         raise ValueError('poses must have shape (N, 7) as x y z qx qy qz qw, got %s'
@@ -100,16 +137,7 @@ def set_boxes(boxes, start, poses, half_extents, rows=None):
                          % (len(poses), half_extents.shape))
     # A broadcast view is read-only (and, for 0 or 1 bodies, already contiguous): numba would
     # compile a separate signature for it during a tick, so make it a writable array.
-    half_extents = np.require(half_extents, np.float64, ['C', 'A', 'W'])
-    if start + len(poses) > boxes.capacity:
-        raise ValueError('storage holds %d boxes, %d needed' % (boxes.capacity,
-                                                                start + len(poses)))
-    if rows is None:
-        rows = np.arange(len(poses))
-    bad, code = _write_boxes(poses, half_extents, start, rows, boxes.centers,
-                             boxes.rotations, boxes.half_extents, boxes.aabbs, boxes.radii)
-    if bad >= 0:
-        raise InvalidBox(bad, REASONS[code])
+    return poses, np.require(half_extents, np.float64, ['C', 'A', 'W'])
 
 
 @kernel
@@ -126,24 +154,45 @@ def _rotation_from_quaternion(x, y, z, w, out):
 
 
 @kernel
-def _write_boxes(poses, half_extents, start, rows, centers, rotations, extents, aabbs,
-                 radii):
-    """Write body i to row ``start + rows[i]``; return (first bad body, reason) or (-1, 0)."""
+def _problem(poses, half_extents, i):
+    """Return why body i cannot be a box (a REASONS code), or VALID."""
+    for k in range(7):
+        if not math.isfinite(poses[i, k]):
+            return NON_FINITE_POSE
+    for k in range(3):
+        if abs(poses[i, k]) > MAX_COORDINATE:
+            return OUT_OF_RANGE
+    x, y, z, w = poses[i, 3], poses[i, 4], poses[i, 5], poses[i, 6]
+    if not abs(math.sqrt(x * x + y * y + z * z + w * w) - 1.0) <= QUATERNION_NORM_TOLERANCE:
+        return BAD_QUATERNION
+    for k in range(3):
+        e = half_extents[i, k]
+        if not (math.isfinite(e) and 0.0 <= e <= MAX_COORDINATE):
+            return BAD_HALF_EXTENTS
+    return VALID
+
+
+@kernel
+def _first_problem(poses, half_extents):
+    """Return (first body that cannot be a box, its REASONS code), or (-1, VALID)."""
     for i in range(poses.shape[0]):
-        for k in range(7):
-            if not math.isfinite(poses[i, k]):
-                return i, NON_FINITE_POSE
-        for k in range(3):
-            if abs(poses[i, k]) > MAX_COORDINATE:
-                return i, OUT_OF_RANGE
+        code = _problem(poses, half_extents, i)
+        if code != VALID:
+            return i, code
+    return -1, VALID
+
+
+@kernel
+def _write_boxes(poses, half_extents, start, rows, boxes):
+    """Write body i to row ``start + rows[i]``; return (first bad body, reason) or (-1, 0)."""
+    centers, rotations, extents, aabbs, radii = (boxes.centers, boxes.rotations,
+                                                 boxes.half_extents, boxes.aabbs, boxes.radii)
+    for i in range(poses.shape[0]):
+        code = _problem(poses, half_extents, i)
+        if code != VALID:
+            return i, code
         x, y, z, w = poses[i, 3], poses[i, 4], poses[i, 5], poses[i, 6]
         norm = math.sqrt(x * x + y * y + z * z + w * w)
-        if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
-            return i, BAD_QUATERNION
-        for k in range(3):
-            e = half_extents[i, k]
-            if not (math.isfinite(e) and 0.0 <= e <= MAX_COORDINATE):
-                return i, BAD_HALF_EXTENTS
         # Scattered writes, sequential reads: measured faster than the other way round.
         b = start + rows[i]
         _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm, rotations[b])

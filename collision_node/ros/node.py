@@ -55,8 +55,9 @@ from visualization_msgs.msg import MarkerArray
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.contacts import CONTACT_DTYPE
 from collision_node.pipeline.jit_progress import compile_progress
-from collision_node.pipeline.obb import Boxes, InvalidBox, set_boxes
-from collision_node.pipeline.world import warm_up, World
+from collision_node.pipeline.static_scene import InvalidCollider
+from collision_node.pipeline.warm_up import warm_up
+from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import CdrError, parse_pose_array
 from collision_node.ros.markers import MarkerWriter
@@ -97,19 +98,15 @@ class CollisionNode(Node):
         super().__init__('collision_node', **kwargs)
         self._config = params.declare(self)
         config = self._config
+        # The World owns the static scene; the node only turns parameters and static_poses
+        # messages into its verbs, by each collider's id (params.Collider.static_id).
         self._world = World(config.broad_phase, config.sphere_prefilter,
                             config.octree_max_depth, config.octree_leaf_cooldown_ticks,
                             config.threads, config.margin, config.continuous,
                             config.continuous_tolerance)
-        # The static colliders now: the pose of each (list order: the newest of its pose
-        # parameter and static_poses), the rows of the enabled ones, set_static's arguments.
-        self._static_poses = np.array([c.pose for c in config.colliders]).reshape(-1, 7)
-        self._enabled_rows = config.enabled_rows()
-        self._disabled_rows = _disabled_rows(config, self._enabled_rows)
-        self._static_scene = config.static_scene(self._static_poses)
-        self._world.set_static(*self._static_scene)
+        _add_colliders(self._world, config.colliders)
         self._world.set_filters(*config.filters())
-        self._scene_version = 0  # counts the changes of the static colliders
+        self._scene_version = 0  # counts the accepted changes of the colliders (diagnostics)
         # Parameter changes may come from another thread (Node.set_parameters); ticks run on
         # the executor's. The lock keeps a World change from landing in the middle of a step.
         self._world_lock = threading.Lock()
@@ -133,6 +130,7 @@ class CollisionNode(Node):
         self._pending = None  # newest unchecked input, in timer mode
 
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
         self.create_timer(config.diagnostic_period_s, self._publish_diagnostics)
         if config.tick_rate_hz > 0.0:
             self.create_timer(1.0 / config.tick_rate_hz, self._on_tick_timer)
@@ -211,8 +209,12 @@ class CollisionNode(Node):
         if now >= self._next_markers_s \
                 and self._markers_publisher.get_subscription_count() > 0:
             markers_start = time.perf_counter()
+            with self._world_lock:
+                colliders = self._world.static_colliders
+                on = colliders.enabled
+                statics = colliders.poses[on], colliders.half_extents[on], colliders.ids[on]
             markers = self._marker_writer.serialize(
-                message.sec, message.nanosec, *self._static_scene[:3], message.poses,
+                message.sec, message.nanosec, *statics, message.poses,
                 config.dynamic_half_extents, result.contacts)
             output_ms += 1e3 * (time.perf_counter() - markers_start)
             self._markers_publisher.publish(markers)
@@ -252,7 +254,6 @@ class CollisionNode(Node):
         """Move the static colliders from the next tick on; refuse an invalid message whole."""
         try:
             message = parse_pose_array(buffer)
-            poses = np.array(message.poses)  # the node's own copy (the message's is a view)
             # Checked against the colliders as they are: a parameter change (maybe from
             # another thread) comes before or after the whole message.
             with self._world_lock:
@@ -260,24 +261,19 @@ class CollisionNode(Node):
                 if message.frame_id and message.frame_id != config.frame_id:
                     raise InputError("frame_id '%s' is not the node's frame_id '%s'"
                                      % (message.frame_id, config.frame_id))
-                if len(poses) != len(config.colliders):
+                if len(message.poses) != len(config.colliders):
                     raise InputError('%d poses for %d static colliders (one per name in '
                                      'static_colliders, in its order)'
-                                     % (len(poses), len(config.colliders)))
-                rows = self._disabled_rows  # their poses are checked too: they may be enabled
-                set_boxes(Boxes(len(rows)), 0, poses[rows], np.zeros(3))
-                rows = self._enabled_rows
-                self._world.move_static(poses[rows])
-                if not np.array_equal(poses, self._static_poses):
+                                     % (len(message.poses), len(config.colliders)))
+                # Disabled colliders are moved (and checked) too: they may be enabled later.
+                if self._world.move_static([c.static_id for c in config.colliders],
+                                           message.poses):
                     self._scene_version += 1
-                self._static_poses = poses
-                self._static_scene = (poses[rows],) + self._static_scene[1:]
         except (CdrError, InputError) as error:
             self._reject('static_poses: %s' % error)
-        except InvalidBox as error:
-            row = int(rows[error.body])
+        except InvalidCollider as error:
             self._reject('static_poses: collider %d (%s): %s'
-                         % (row, config.colliders[row].name, error.reason))
+                         % (error.body, config.colliders[error.body].name, error.reason))
         else:
             self._monitor.scene(self._scene_version)
 
@@ -287,7 +283,41 @@ class CollisionNode(Node):
                                throttle_duration_sec=LOG_THROTTLE_S)
 
     def _on_set_parameters(self, changes):
-        """Apply run-time changes on the next tick, all or none; refuse invalid ones with why."""
+        """Accept run-time changes that are valid together, or refuse them all with why.
+
+        Validation only (rclpy may still refuse the call after this): the changes are
+        applied by :meth:`_after_set_parameters`.
+        """
+        try:
+            self._changed_parameters(changes)
+        except params.ParameterError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        return SetParametersResult(successful=True)
+
+    def _after_set_parameters(self, changes):
+        """Apply accepted run-time changes to the World: from the next tick on, all at once."""
+        with self._world_lock:
+            old, changed = self._config, self._changed_parameters(changes)
+            world = self._world
+            world.configure(
+                broad_phase=changed.broad_phase, octree_max_depth=changed.octree_max_depth,
+                octree_leaf_cooldown_ticks=changed.octree_leaf_cooldown_ticks)
+            world.sphere_prefilter = changed.sphere_prefilter
+            if changed.colliders is not old.colliders:  # a collider or the list was set
+                _change_colliders(world, old.colliders, changed.colliders)
+                self._scene_version += 1
+                self._monitor.scene(self._scene_version, changed.colliders)
+            filters = ('dynamic_collision_category', 'dynamic_collision_mask', 'ignored_pairs')
+            if any(getattr(changed, name) != getattr(old, name) for name in filters) \
+                    or _ids(changed) != _ids(old):  # a name in ignored_pairs may have a new id
+                world.set_filters(*changed.filters())
+            world.margin = changed.margin
+            world.continuous = changed.continuous
+            world.continuous_tolerance = changed.continuous_tolerance
+            self._config = changed
+
+    def _changed_parameters(self, changes):
+        """Return the parameters with ``changes`` made; ParameterError if they are refused."""
         given = {change.name: change.value for change in changes}
 
         def block_value(name):
@@ -295,63 +325,11 @@ class CollisionNode(Node):
             return given[name] if name in given else self.get_parameter_or(name).value
 
         changed = self._config
-        try:
-            # The list first, so that the other changes find the colliders it adds.
-            for change in sorted(changes, key=lambda change: change.name != 'static_colliders'):
-                changed = params.run_time_change(changed, change.name, change.value,
-                                                 block_value)
-            params.check_run_time(changed)
-        except params.ParameterError as error:
-            return SetParametersResult(successful=False, reason=str(error))
-        old = self._config
-        with self._world_lock:
-            try:
-                self._world.configure(
-                    broad_phase=changed.broad_phase, octree_max_depth=changed.octree_max_depth,
-                    octree_leaf_cooldown_ticks=changed.octree_leaf_cooldown_ticks)
-            except ValueError as error:
-                return SetParametersResult(successful=False, reason=str(error))
-            if changed.sphere_prefilter != old.sphere_prefilter:
-                self._world.sphere_prefilter = changed.sphere_prefilter
-            if changed.colliders is not old.colliders:  # a collider or the list was set
-                self._change_scene(old, changed)
-            filters = ('dynamic_collision_category', 'dynamic_collision_mask', 'ignored_pairs')
-            if any(getattr(changed, name) != getattr(old, name) for name in filters) \
-                    or _ids(changed) != _ids(old):  # a name in ignored_pairs may have a new id
-                self._world.set_filters(*changed.filters())
-            self._world.margin = changed.margin
-            self._world.continuous = changed.continuous
-            self._world.continuous_tolerance = changed.continuous_tolerance
-            self._config = changed
-        return SetParametersResult(successful=True)
-
-    def _change_scene(self, old, changed):
-        """Give the World the colliders of ``changed``, in place when only poses or sizes changed.
-
-        Otherwise they are set anew. A collider keeps its current pose (from static_poses)
-        unless its pose parameter was set now.
-        """
-        current = {c.static_id: (c.pose, row) for row, c in enumerate(old.colliders)}
-        poses = np.array([c.pose for c in changed.colliders]).reshape(-1, 7)
-        for row, collider in enumerate(changed.colliders):
-            pose, old_row = current.get(collider.static_id, (None, None))
-            if pose is collider.pose:  # its parameter was not set: where static_poses put it
-                poses[row] = self._static_poses[old_row]
-        scene = changed.static_scene(poses)
-        same = ('name', 'static_id', 'enabled', 'margin', 'collision_category',
-                'collision_mask')
-        if len(old.colliders) == len(changed.colliders) and all(
-                all(getattr(a, key) == getattr(b, key) for key in same)
-                for a, b in zip(old.colliders, changed.colliders)):
-            self._world.move_static(scene[0], scene[1])
-        else:
-            self._world.set_static(*scene)
-        self._static_poses = poses
-        self._enabled_rows = changed.enabled_rows()
-        self._disabled_rows = _disabled_rows(changed, self._enabled_rows)
-        self._static_scene = scene
-        self._scene_version += 1
-        self._monitor.scene(self._scene_version, changed.colliders)
+        # The list first, so that the other changes find the colliders it adds.
+        for change in sorted(changes, key=lambda change: change.name != 'static_colliders'):
+            changed = params.run_time_change(changed, change.name, change.value, block_value)
+        params.check_run_time(changed)
+        return changed
 
     def _publish_diagnostics(self):
         config = self._config
@@ -366,9 +344,44 @@ class CollisionNode(Node):
             header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
 
 
-def _disabled_rows(config, enabled_rows):
-    """Return the list indices of the disabled colliders, int64."""
-    return np.setdiff1d(np.arange(len(config.colliders)), enabled_rows)
+def _add_colliders(world, colliders):
+    """Give ``world`` the ``colliders`` (params.Collider) as new static colliders."""
+    if colliders:
+        world.add_static([c.static_id for c in colliders], [c.pose for c in colliders],
+                         [c.half_extents for c in colliders],
+                         margins=[c.margin for c in colliders],
+                         categories=[c.collision_category for c in colliders],
+                         masks=[c.collision_mask for c in colliders],
+                         enabled=[c.enabled for c in colliders])
+
+
+def _change_colliders(world, old, new):
+    """Turn a change of the collider parameters from ``old`` to ``new`` into World verbs.
+
+    Colliders are matched by id. A kept collider moves only when its pose parameter was set
+    now (a new value object): else it stays where static_poses put it.
+    """
+    before = {c.static_id: c for c in old}
+    after = {c.static_id: c for c in new}
+    world.remove_static([i for i in before if i not in after])
+    _add_colliders(world, [c for c in new if c.static_id not in before])
+    kept = [(before[c.static_id], c) for c in new if c.static_id in before]
+    posed = [c for b, c in kept if c.pose is not b.pose]
+    if posed:
+        world.move_static([c.static_id for c in posed], [c.pose for c in posed])
+    sized = [c for b, c in kept if not np.array_equal(c.half_extents, b.half_extents)]
+    if sized:
+        world.move_static([c.static_id for c in sized],
+                          half_extents=[c.half_extents for c in sized])
+    switched = [c for b, c in kept if c.enabled != b.enabled]
+    if switched:
+        world.enable_static([c.static_id for c in switched], [c.enabled for c in switched])
+    settings = ('margin', 'collision_category', 'collision_mask')
+    tuned = [c for b, c in kept if any(getattr(c, key) != getattr(b, key) for key in settings)]
+    if tuned:
+        world.update_static([c.static_id for c in tuned], [c.margin for c in tuned],
+                            [c.collision_category for c in tuned],
+                            [c.collision_mask for c in tuned])
 
 
 def _ids(config):

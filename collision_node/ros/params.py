@@ -9,21 +9,19 @@ Validation is plain Python on plain values, so tests call it without ROS:
 them back through :func:`parse`. Every problem raises :class:`ParameterError`, whose text names
 the parameter and says what is wrong with it.
 """
-import json
 import math
-import os
 import re
 import reprlib
 from typing import NamedTuple
 
 import numpy as np
 
-from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.broadphase import check_broad_phase, check_settings, NAMES, Settings
+from collision_node.pipeline.contacts import DYNAMIC, STATIC
 from collision_node.pipeline.continuous import CONTINUOUS_TOLERANCE
 from collision_node.pipeline.filters import (ALL_CATEGORIES, collision_bits, DEFAULT_CATEGORY,
                                              MAX_ID)
 from collision_node.pipeline.obb import MAX_COORDINATE, QUATERNION_NORM_TOLERANCE
-from collision_node.pipeline.world import DYNAMIC, STATIC, World
 
 # Type names as in doc/parameters.md; declare() maps them to rclpy's Parameter.Type.
 STRING, BOOL, INTEGER, DOUBLE = 'string', 'bool', 'integer', 'double'
@@ -103,7 +101,7 @@ MAX_THREADS = 64  # far more than a collision check can use; a larger value is a
 MAX_TICK_RATE_HZ = 1000.0
 POSE_SIZE = 7
 GIVEN_TYPE = re.compile(r"of type '(\w+)', expecting")  # in rclpy's InvalidParameterTypeException
-WORLD_SETTINGS = {  # parameter name: World keyword; the World judges these values itself
+WORLD_SETTINGS = {  # parameter name: World keyword, checked by the broad phases' own checks
     'broad_phase': 'broad_phase',
     'octree.max_depth': 'octree_max_depth',
     'octree.leaf_cooldown_ticks': 'octree_leaf_cooldown_ticks',
@@ -159,26 +157,6 @@ class Parameters(NamedTuple):
     threads: int
     diagnostic_period_s: float
     next_static_id: int = 0  # the id of the next collider added at run time
-
-    def enabled_rows(self):
-        """Return the list indices of the enabled colliders, int64."""
-        return np.array([i for i, c in enumerate(self.colliders) if c.enabled], np.int64)
-
-    def static_scene(self, poses=None):
-        """World.set_static's arguments for the enabled colliders.
-
-        Poses (S, 7), half extents (S, 3), ids (their static_id), margins, categories and
-        masks (S,). ``poses`` (one per collider, list order) replaces their pose parameters.
-        """
-        rows = self.enabled_rows()
-        enabled = [self.colliders[i] for i in rows]
-        if poses is None:
-            poses = np.array([c.pose for c in self.colliders]).reshape(-1, POSE_SIZE)
-        extents = np.array([c.half_extents for c in enabled]).reshape(-1, 3)
-        return (poses[rows], extents, np.array([c.static_id for c in enabled], np.int64),
-                np.array([c.margin for c in enabled], dtype=np.float64),
-                np.array([c.collision_category for c in enabled], dtype=np.int64),
-                np.array([c.collision_mask for c in enabled], dtype=np.int64))
 
     def filters(self):
         """World.set_filters's arguments: dynamic categories and masks, ignored pair rows."""
@@ -254,9 +232,15 @@ def _collider(name, value_of, static_id):
 
 
 def check_world_setting(name, value):
-    """Raise ParameterError unless ``World`` accepts ``value`` for the parameter ``name``."""
+    """Raise ParameterError unless the World would accept ``value`` for the parameter ``name``.
+
+    The broad phases' own checks, without building anything.
+    """
     try:
-        World(**{WORLD_SETTINGS[name]: value})
+        if name == 'broad_phase':
+            check_broad_phase(value)
+        else:
+            check_settings(Settings(**{WORLD_SETTINGS[name]: value}))
     except ValueError as error:
         raise ParameterError(name, str(error)) from None
 
@@ -437,50 +421,6 @@ def unknown_parameters(given, collider_names):
                                for key in COLLIDER_PARAMETERS}
     return sorted(name for name in given if name not in known
                   and name.split('.')[0] not in RCLPY_PARAMETER_GROUPS)
-
-
-def scene_parameters(static_poses, static_half_extents, dynamic_half_extents, **values):
-    """Return the node's parameters for a scene (name -> value), e.g. for a params file.
-
-    The static boxes become colliders ``s0``, ``s1``, ... in their order; ``values`` sets the
-    other parameters by name (``**{'diagnostic_updater.period': 0.5}`` for dotted names).
-    """
-    names = ['s%d' % i for i in range(len(static_poses))]
-    values = dict(values, static_colliders=names, **{
-        'dynamic.half_extents': np.asarray(dynamic_half_extents, np.float64).ravel().tolist()})
-    for name, pose, extents in zip(names, np.asarray(static_poses, np.float64).tolist(),
-                                   np.asarray(static_half_extents, np.float64).tolist()):
-        values[name + '.pose'], values[name + '.half_extents'] = pose, extents
-    return values
-
-
-def write_scene_files(directory, static_poses, static_half_extents, dynamic_half_extents,
-                      names=None):
-    """Write a scene as ``static_scene_file`` and ``dynamic.half_extents_file``; return them.
-
-    The files go to ``directory`` (scene.npz, dynamic_half_extents.npy); the static boxes are
-    named ``s0``, ``s1``, ... unless ``names`` are given. Returns the two parameters (name ->
-    path), for :func:`write_params_file` with the scene's other parameters.
-    """
-    scene = os.path.join(directory, 'scene.npz')
-    sizes = os.path.join(directory, 'dynamic_half_extents.npy')
-    count = len(static_poses)
-    np.savez(scene, names=np.array(names if names is not None
-                                   else ['s%d' % i for i in range(count)], dtype=str),
-             poses=np.asarray(static_poses, np.float64).reshape(count, POSE_SIZE),
-             half_extents=np.asarray(static_half_extents, np.float64).reshape(count, 3))
-    np.save(sizes, np.asarray(dynamic_half_extents, np.float64))
-    return {'static_scene_file': scene, 'dynamic.half_extents_file': sizes}
-
-
-def write_params_file(path, values, node_name='collision_node'):
-    """Write ``values`` (name -> value) as a --params-file (JSON is YAML).
-
-    Empty lists are left out: they have no type in a ROS parameter file.
-    """
-    with open(path, 'w') as out:
-        json.dump({node_name: {'ros__parameters': {
-            name: value for name, value in values.items() if value != []}}}, out)
 
 
 def _plain(value):

@@ -76,14 +76,20 @@ BROAD_PHASES = {phase.name: phase for phase in (BruteForce, Sphere, Octree, KdTr
 NAMES = tuple(BROAD_PHASES) + ('auto',)
 
 
+def check_broad_phase(name):
+    """Return ``name`` if it is one of :data:`NAMES`, else raise ValueError listing them."""
+    if name not in NAMES:
+        raise ValueError('unknown broad phase %r; choose one of %s' % (name, ', '.join(NAMES)))
+    return name
+
+
 def make_broad_phase(name, settings=Settings(), workers=None):
     """Return a new broad phase called ``name`` (one of :data:`NAMES`).
 
     ``workers`` (default: the caller's thread only) is handed to the phases that use threads.
     Raises ValueError for an unknown name or invalid settings (:func:`check_settings`).
     """
-    if name not in NAMES:
-        raise ValueError('unknown broad phase %r; choose one of %s' % (name, ', '.join(NAMES)))
+    check_broad_phase(name)
     check_settings(settings)
     if name == 'auto':
         from collision_node.pipeline.broadphase.auto import Auto
