@@ -154,8 +154,8 @@ def _rotation_from_quaternion(x, y, z, w, out):
 
 
 @kernel
-def _problem(poses, half_extents, i):
-    """Return why body i cannot be a box (a REASONS code), or VALID."""
+def _problem(poses, half_extents, i, e):
+    """Return why body i (its half extents row e) cannot be a box (a REASONS code), or VALID."""
     for k in range(7):
         if not math.isfinite(poses[i, k]):
             return NON_FINITE_POSE
@@ -166,8 +166,8 @@ def _problem(poses, half_extents, i):
     if not abs(math.sqrt(x * x + y * y + z * z + w * w) - 1.0) <= QUATERNION_NORM_TOLERANCE:
         return BAD_QUATERNION
     for k in range(3):
-        e = half_extents[i, k]
-        if not (math.isfinite(e) and 0.0 <= e <= MAX_COORDINATE):
+        e_k = half_extents[e, k]
+        if not (math.isfinite(e_k) and 0.0 <= e_k <= MAX_COORDINATE):
             return BAD_HALF_EXTENTS
     return VALID
 
@@ -176,7 +176,7 @@ def _problem(poses, half_extents, i):
 def _first_problem(poses, half_extents):
     """Return (first body that cannot be a box, its REASONS code), or (-1, VALID)."""
     for i in range(poses.shape[0]):
-        code = _problem(poses, half_extents, i)
+        code = _problem(poses, half_extents, i, i)
         if code != VALID:
             return i, code
     return -1, VALID
@@ -185,31 +185,41 @@ def _first_problem(poses, half_extents):
 @kernel
 def _write_boxes(poses, half_extents, start, rows, boxes):
     """Write body i to row ``start + rows[i]``; return (first bad body, reason) or (-1, 0)."""
-    centers, rotations, extents, aabbs, radii = (boxes.centers, boxes.rotations,
-                                                 boxes.half_extents, boxes.aabbs, boxes.radii)
     for i in range(poses.shape[0]):
-        code = _problem(poses, half_extents, i)
+        code = write_box(poses, half_extents, i, i, start + rows[i], boxes.centers,
+                         boxes.rotations, boxes.half_extents, boxes.aabbs, boxes.radii)
         if code != VALID:
             return i, code
-        x, y, z, w = poses[i, 3], poses[i, 4], poses[i, 5], poses[i, 6]
-        norm = math.sqrt(x * x + y * y + z * z + w * w)
-        # Scattered writes, sequential reads: measured faster than the other way round.
-        b = start + rows[i]
-        _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm, rotations[b])
-        radius_sq = 0.0
-        for k in range(3):
-            centers[b, k] = poses[i, k]
-            extents[b, k] = half_extents[i, k]
-            radius_sq += half_extents[i, k] * half_extents[i, k]
-        radii[b] = math.sqrt(radius_sq)
-        for k in range(3):
-            reach = 0.0
-            for j in range(3):
-                reach += abs(rotations[b, k, j]) * extents[b, j]
-            reach += AABB_RELATIVE_MARGIN * (reach + abs(centers[b, k]))
-            aabbs[b, 0, k] = centers[b, k] - reach
-            aabbs[b, 1, k] = centers[b, k] + reach
     return -1, VALID
+
+
+@kernel
+def write_box(poses, half_extents, i, e, b, centers, rotations, extents, aabbs, radii):
+    """Write body i (its pose row i, its half extents row e) to box row b; return a code.
+
+    The code is VALID, or why the body cannot be a box (REASONS); then nothing is written.
+    """
+    code = _problem(poses, half_extents, i, e)
+    if code != VALID:
+        return code
+    x, y, z, w = poses[i, 3], poses[i, 4], poses[i, 5], poses[i, 6]
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    # Scattered writes, sequential reads: measured faster than the other way round.
+    _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm, rotations[b])
+    radius_sq = 0.0
+    for k in range(3):
+        centers[b, k] = poses[i, k]
+        extents[b, k] = half_extents[e, k]
+        radius_sq += half_extents[e, k] * half_extents[e, k]
+    radii[b] = math.sqrt(radius_sq)
+    for k in range(3):
+        reach = 0.0
+        for j in range(3):
+            reach += abs(rotations[b, k, j]) * extents[b, j]
+        reach += AABB_RELATIVE_MARGIN * (reach + abs(centers[b, k]))
+        aabbs[b, 0, k] = centers[b, k] - reach
+        aabbs[b, 1, k] = centers[b, k] + reach
+    return VALID
 
 
 @kernel
