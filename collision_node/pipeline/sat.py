@@ -71,7 +71,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.distance import box_distance
 from collision_node.pipeline.frames import (column, cross, dot, edge_overlap, face_a_overlap,
                                             face_b_overlap, matrix, MIN_EDGE_AXIS_LENGTH,
@@ -237,7 +237,7 @@ def _collide_pairs(centers, rotations, extents, radii, pairs, sphere_prefilter, 
     return sat_tests
 
 
-@kernel
+@inlined_kernel
 def collide_pair(centers, rotations, extents, radii, a, b, sphere_prefilter, margin,
                  box_margins):
     """Return (1 if the pair reached the SAT, status, depth, normal, point) of boxes a and b.
