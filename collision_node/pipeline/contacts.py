@@ -10,7 +10,7 @@ is the first time in the tick's interval [0, 1] at which the pair came within it
 """
 import numpy as np
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.sat import COLLIDING, NEAR
 
 DYNAMIC = 0  # body types, MoveIt's body_type convention
@@ -228,7 +228,7 @@ def _assemble(pairs, colliding, first_body, stop_body, depth, normal, point, n_s
         start = end
 
 
-@kernel
+@inlined_kernel
 def write_contact(out, row, point, normal, depth, toi, id_a, id_b, type_b):
     """Write a pair's contact to ``out[row]``: ``depth`` as the SAT gives it (< 0: NEAR)."""
     out[row].x = point[0]

@@ -23,7 +23,7 @@ import reprlib
 
 import numpy as np
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATIC
 
 DEFAULT_CATEGORY = 1
@@ -152,7 +152,7 @@ def static_key(static_id):
     return static_id | _STATIC_KEY_BIT
 
 
-@kernel
+@inlined_kernel
 def dynamic_bits(body, categories, masks, dynamic_ignorable):
     """Return (category, mask, named in an ignored pair) of dynamic body ``body``."""
     return (categories[body if len(categories) > 1 else 0],
@@ -160,7 +160,7 @@ def dynamic_bits(body, categories, masks, dynamic_ignorable):
             body < len(dynamic_ignorable) and dynamic_ignorable[body])
 
 
-@kernel
+@inlined_kernel
 def pair_checked(id_a, key_b, category_b, mask_b, ignorable_b, categories, masks,
                  ignored_keys, dynamic_ignorable):
     """Whether dynamic body ``id_a`` and body b pass both rules.

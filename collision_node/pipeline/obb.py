@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 
 # A quaternion whose norm is within this of 1 is normalised; farther off it is rejected.
 # 1e-3 accepts quaternions printed with 4+ significant digits or stored as float32, and
@@ -193,7 +193,7 @@ def _write_boxes(poses, half_extents, start, rows, boxes):
     return -1, VALID
 
 
-@kernel
+@inlined_kernel
 def write_box(poses, half_extents, i, e, b, centers, rotations, extents, aabbs, radii):
     """Write body i (its pose row i, its half extents row e) to box row b; return a code.
 
@@ -266,13 +266,21 @@ def overlap_across(aabbs_a, a, aabbs_b, b):
 def spheres_apart(centers, radii, a, b):
     """Return True when the bounding spheres are apart by more than the touching tolerance.
 
-    Compares squared distances (the paper's "no square roots"); the radii are stored.
+    Compares squared distances (the "Engine Algorithms" sphere test: no square roots); the
+    radii are stored.
     """
+    return centres_apart((centers[a, 0], centers[a, 1], centers[a, 2]),
+                         (centers[b, 0], centers[b, 1], centers[b, 2]), radii[a], radii[b])
+
+
+@kernel
+def centres_apart(center_a, center_b, radius_a, radius_b):
+    """:func:`spheres_apart` for two spheres given as tuples."""
     dist_sq = 0.0
-    scale = radii[a] + radii[b]
+    scale = radius_a + radius_b
     for i in range(3):
-        d = centers[b, i] - centers[a, i]
+        d = center_b[i] - center_a[i]
         dist_sq += d * d
-        scale += abs(centers[a, i]) + abs(centers[b, i])
-    reach = radii[a] + radii[b] + TIE_ULPS * EPS * scale
+        scale += abs(center_a[i]) + abs(center_b[i])
+    reach = radius_a + radius_b + TIE_ULPS * EPS * scale
     return dist_sq > reach * reach

@@ -6,7 +6,7 @@ one pass: the dynamic boxes are written from the poses, every pair of boxes is t
 then the filters, then the SAT with margins and exact distances), and the contacts come out in
 the cloud's order, (id_a, type_b, id_b), as the pairs are visited: no pair list, no sort, no
 call per stage. The pass calls the very kernels the general path calls for one body, one pair
-and one contact (obb.write_box, filters.pair_checked, sat.collide_pair,
+and one contact (obb.write_box, filters.pair_checked, sat.collide_boxes,
 contacts.write_contact), so its answers are the general path's to the bit.
 
 :func:`check_states` runs the same pass for K states of the same D bodies, each against the
@@ -18,11 +18,11 @@ one row per collider in id order: (row, id, category, mask, named in an ignored 
 """
 import numpy as np
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import CONTACT_DTYPE, DYNAMIC, STATIC, write_contact
 from collision_node.pipeline.filters import dynamic_bits, pair_checked, static_key
 from collision_node.pipeline.obb import aabbs_overlap, VALID, write_box
-from collision_node.pipeline.sat import collide_pair, COLLIDING, INVALID, NEAR
+from collision_node.pipeline.sat import box, collide_boxes, COLLIDING, INVALID, NEAR, pair_margin
 
 # The contacts of a batch, each with its state's index (the state_collisions cloud's fields).
 STATE_CONTACT_DTYPE = np.dtype(CONTACT_DTYPE.descr + [('state', np.uint32)])
@@ -30,8 +30,8 @@ STATE_CONTACT_DTYPE = np.dtype(CONTACT_DTYPE.descr + [('state', np.uint32)])
 ROW, ID, CATEGORY, MASK, IGNORABLE = range(5)
 # Counters of one pass, as its stats array holds them.
 COMPARED, CANDIDATES, FILTERED, SAT_TESTS = range(4)
-# Per reported pair, in the pass's scratch: body a, body b (static: -1 - its statics index),
-# then depth, normal (3) and point (3).
+# Per reported pair, in the pass's scratch: body a, body b (a static one: -1 - its index in
+# ``statics``), then depth, normal (3) and point (3).
 _FLOATS = 7
 
 
@@ -124,7 +124,7 @@ def _grown(ids, floats, needed):
     return more_ids, more_floats
 
 
-@kernel
+@inlined_kernel
 def _check_state(poses, first, bodies, half_extents, n_static, statics, centers, rotations,
                  extents, aabbs, radii, box_margins, margin, pad, sphere_prefilter, filtering,
                  categories, masks, ignored_keys, dynamic_ignorable, ids, floats, count,
@@ -134,7 +134,8 @@ def _check_state(poses, first, bodies, half_extents, n_static, statics, centers,
     Returns (first invalid body or -1, its reason code, the new count, 1 if the SAT met NaN).
     Pairs are visited in the cloud's order: for each body a by id, the dynamic bodies after
     it, then the static colliders by id; each pair in the frame of its body a, as the
-    general path orients it (contacts.orient_pairs).
+    general path orients it (contacts.orient_pairs). Inlined into its callers, and calling
+    nothing with arrays per pair, so that no array is reference-counted in the loops.
     """
     per_body = len(half_extents) > 1
     for i in range(bodies):
@@ -149,58 +150,45 @@ def _check_state(poses, first, bodies, half_extents, n_static, statics, centers,
             radii[n_static + i] += pad
     for a in range(bodies):
         row_a = n_static + a
-        for b in range(a + 1, bodies):
-            count, invalid = _test_pair(
-                row_a, n_static + b, a, b, b, 0, 0, 0, aabbs, centers, rotations, extents,
-                radii, box_margins, margin, sphere_prefilter, filtering, categories, masks,
-                ignored_keys, dynamic_ignorable, ids, floats, count, stats, True)
-            if invalid:
+        box_a = box(centers, rotations, extents, radii, row_a)
+        # b: the dynamic bodies after a (by id), then the statics by id.
+        for j in range(a + 1, bodies + len(statics)):
+            if j < bodies:
+                row_b, b, key_b = n_static + j, j, j
+            else:
+                row_b, b, key_b = statics[j - bodies, ROW], bodies - 1 - j, \
+                    static_key(statics[j - bodies, ID])
+            stats[COMPARED] += 1
+            if not aabbs_overlap(aabbs, row_a, row_b):
+                continue
+            stats[CANDIDATES] += 1
+            if filtering:
+                if j < bodies:
+                    category_b, mask_b, ignorable_b = dynamic_bits(j, categories, masks,
+                                                                   dynamic_ignorable)
+                else:
+                    category_b = statics[j - bodies, CATEGORY]
+                    mask_b = statics[j - bodies, MASK]
+                    ignorable_b = statics[j - bodies, IGNORABLE] != 0
+                if not pair_checked(a, key_b, category_b, mask_b, ignorable_b, categories,
+                                    masks, ignored_keys, dynamic_ignorable):
+                    stats[FILTERED] += 1
+                    continue
+            tested, status, depth, normal, point = collide_boxes(
+                box_a, box(centers, rotations, extents, radii, row_b), sphere_prefilter,
+                pair_margin(margin, box_margins, row_a, row_b))
+            stats[SAT_TESTS] += tested
+            if status == INVALID:
                 return -1, VALID, count, 1
-        for s in range(len(statics)):
-            count, invalid = _test_pair(
-                row_a, statics[s, ROW], a, -1 - s, static_key(statics[s, ID]),
-                statics[s, CATEGORY], statics[s, MASK], statics[s, IGNORABLE], aabbs,
-                centers, rotations, extents, radii, box_margins, margin, sphere_prefilter,
-                filtering, categories, masks, ignored_keys, dynamic_ignorable, ids, floats,
-                count, stats, False)
-            if invalid:
-                return -1, VALID, count, 1
+            if status == COLLIDING or status == NEAR:
+                ids[count, 0] = a
+                ids[count, 1] = b
+                floats[count, 0] = depth
+                for m in range(3):
+                    floats[count, 1 + m] = normal[m]
+                    floats[count, 4 + m] = point[m]
+                count += 1
     return -1, VALID, count, 0
-
-
-@kernel
-def _test_pair(row_a, row_b, a, b, key_b, category_b, mask_b, ignorable_b, aabbs, centers,
-               rotations, extents, radii, box_margins, margin, sphere_prefilter, filtering,
-               categories, masks, ignored_keys, dynamic_ignorable, ids, floats, count, stats,
-               b_dynamic):
-    """Test one pair; append it when reported. Returns (count, 1 if the SAT met NaN)."""
-    stats[COMPARED] += 1
-    if not aabbs_overlap(aabbs, row_a, row_b):
-        return count, 0
-    stats[CANDIDATES] += 1
-    if filtering:
-        if b_dynamic:
-            category_b, mask_b, ignorable_b = dynamic_bits(b, categories, masks,
-                                                           dynamic_ignorable)
-        if not pair_checked(a, key_b, category_b, mask_b, ignorable_b, categories, masks,
-                            ignored_keys, dynamic_ignorable):
-            stats[FILTERED] += 1
-            return count, 0
-    tested, status, depth, normal, point = collide_pair(
-        centers, rotations, extents, radii, row_a, row_b, sphere_prefilter, margin,
-        box_margins)
-    stats[SAT_TESTS] += tested
-    if status == INVALID:
-        return count, 1
-    if status == COLLIDING or status == NEAR:
-        ids[count, 0] = a
-        ids[count, 1] = b
-        floats[count, 0] = depth
-        for m in range(3):
-            floats[count, 1 + m] = normal[m]
-            floats[count, 4 + m] = point[m]
-        count += 1
-    return count, 0
 
 
 @kernel
