@@ -15,7 +15,8 @@ pass it clearly to leave), and a new choice must hold for ``SWITCH_AFTER_TICKS``
 before it is taken, so a scene hovering at a threshold does not flap (each switch throws away
 the structures of the phase left, e.g. the grid's static table). The first tick, and a scene
 beyond a threshold by ``URGENT_MARGIN`` (100,000 bodies arriving while brute force runs: one
-such tick takes seconds), switch at once.
+such tick takes seconds), switch at once. ``validate`` (for tests) validates the phase that
+ran the last tick.
 """
 import numpy as np
 

@@ -1,7 +1,8 @@
 """Brute force: every dynamic box against every static box and every other dynamic box.
 
 The baseline of both seed papers, O(D·S + D²/2) comparisons. The comparison is an AABB
-overlap test; the ``sphere`` phase runs the same loop with the bounding-sphere test.
+overlap test; the ``sphere`` phase runs the same loop with the bounding-sphere test. Nothing
+is built, so ``validate`` (for tests) only checks the counts.
 """
 import numpy as np
 

@@ -23,6 +23,7 @@ branches (in a cell a hit is a coin flip).
 Invariants: the cell mapping is monotone, so boxes whose AABBs overlap have intersecting
 cell ranges and meet in their first shared cell, in which both are entered; the lattice is
 unbounded (hashed keys, clamped at ±2**20 cells), so there is no domain to leave.
+:meth:`Grid.validate` (for tests) checks both tables entry by entry.
 
 When to use: many bodies of similar size, anywhere in space (uniform, clustered or flying
 apart: the hash has no domain and the cell side follows the body size). It degrades when sizes

@@ -31,6 +31,8 @@ Rebuilding every tick costs a partition per tick for nothing while the tree is s
 refitting alone lets the tree decay (clustered: 50 % more pairs compared after 100 ticks);
 refit-then-rebuild-when-worse is at or below the better of the two everywhere.
 
+:meth:`KdTreePhase.validate` (for tests) checks both trees node by node (:func:`validate_tree`).
+
 When to use: scenes of mixed sizes where no cell size suits all boxes, and static scenes with
 few moving bodies (the static tree is built once). The grid is faster on uniform sizes.
 """
@@ -309,28 +311,24 @@ def _select(keys, perm, start, end, nth):
 
 @kernel
 def _tree_pairs(tree, static, aabbs, n_static, stack, out):
-    perm, node_start, node_end, bounds = tree.perm, tree.node_start, tree.node_end, \
-        tree.bounds
+    perm = tree.perm
     count = 0
     compared = 0
     for p in range(len(perm)):
-        a = perm[p]
-        count, tested = _query(aabbs, a, p + 1, perm, node_start, node_end, bounds, stack, out,
-                               count, True)
+        count, tested = _query(tree, aabbs, perm[p], p + 1, stack, out, count, True)
         compared += tested
     if n_static:
-        s_perm, s_start, s_end, s_bounds = static.perm, static.node_start, static.node_end, \
-            static.bounds
         for p in range(len(perm)):
-            count, tested = _query(aabbs, perm[p], 0, s_perm, s_start, s_end, s_bounds, stack,
-                                   out, count, False)
+            count, tested = _query(static, aabbs, perm[p], 0, stack, out, count, False)
             compared += tested
     return count, compared
 
 
 @kernel
-def _query(aabbs, a, first, perm, node_start, node_end, bounds, stack, out, count, dynamic):
-    """Pairs of box ``a`` with the tree's boxes at positions >= ``first``."""
+def _query(tree, aabbs, a, first, stack, out, count, dynamic):
+    """Pairs of box ``a`` with the boxes at positions >= ``first`` of ``tree``."""
+    perm, node_start, node_end, bounds = tree.perm, tree.node_start, tree.node_end, \
+        tree.bounds
     compared = 0
     stack[0] = 0
     top = 1

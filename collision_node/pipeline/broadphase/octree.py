@@ -46,7 +46,8 @@ n^(1/3), so the best depth grows a third as fast as log2(n).
 Invariants: a leaf is in the map iff it holds a box or cools down; a dynamic box is in every
 leaf of its registered cell range, which contains its current one; the active list holds
 exactly the leaves that hold dynamic boxes or cool down. test_broadphase.py checks their
-consequence, brute force's pairs, over hundreds of ticks of bodies coming, going and moving.
+consequence, brute force's pairs, over hundreds of ticks of bodies coming, going and moving;
+:meth:`Octree.validate` (for tests) checks them and the bookkeeping behind them directly.
 
 When to use: as the paper's reference and where bodies stay in their leaves for many ticks
 (slow motion, many static boxes). The hashed grid does the same job without a root cube or
@@ -372,10 +373,7 @@ def _update(state, lattice, aabbs, n_static, n_dynamic, tick, cooldown):
     When the free leaves or entries might not suffice, nothing is changed and the number of
     leaf references to insert is returned instead, for a rebuild with more room.
     """
-    leaves, free_leaves, active, counters = (state.leaves, state.free_leaves, state.active,
-                                             state.counters)
-    entries, free_entries, bodies = state.entries, state.free_entries, state.bodies
-    map_keys, map_leaves, moves = state.map_keys, state.map_leaves, state.moves
+    counters, bodies, moves = state.counters, state.bodies, state.moves
     body_range, new_range, big_rows = state.body_range, state.new_range, state.big_rows
     n_before = counters[DYNAMIC_COUNT]
     needed = 0
@@ -396,13 +394,13 @@ def _update(state, lattice, aabbs, n_static, n_dynamic, tick, cooldown):
         return needed
     for i in range(n_dynamic, n_before):  # bodies that are gone
         if bodies[i, BODY_STATE] == IN_LEAVES:
-            _remove_body(leaves, entries, free_entries, bodies, counters, i, tick)
+            _remove_body(state, i, tick)
         bodies[i, BODY_STATE] = OUTSIDE_TREE
     for i in range(n_dynamic):  # all removals first, so their entries can be reused
         if not moves[i]:
             counters[STAYED] += 1
         elif i < n_before and bodies[i, BODY_STATE] == IN_LEAVES:
-            _remove_body(leaves, entries, free_entries, bodies, counters, i, tick)
+            _remove_body(state, i, tick)
             counters[REINSERTED] += 1
         else:
             counters[INSERTED] += 1
@@ -414,15 +412,13 @@ def _update(state, lattice, aabbs, n_static, n_dynamic, tick, cooldown):
                 bodies[i, BODY_STATE] = BIG
             else:
                 bodies[i, BODY_STATE] = IN_LEAVES
-                _insert_body(leaves, free_leaves, active, entries, free_entries, bodies,
-                             body_range, counters, map_keys, map_leaves, i)
+                _insert_body(state, i)
         if bodies[i, BODY_STATE] == BIG:
             big_rows[big] = n_static + i
             big += 1
     counters[BIG_DYNAMIC] = big
     counters[DYNAMIC_COUNT] = n_dynamic
-    _drop_cooled_leaves(leaves, free_leaves, active, counters, map_keys, map_leaves, tick,
-                        cooldown)
+    _drop_cooled_leaves(state, tick, cooldown)
     return 0
 
 
@@ -466,9 +462,12 @@ def _find_or_create_leaf(leaves, free_leaves, counters, map_keys, map_leaves, x,
 
 
 @kernel
-def _insert_body(leaves, free_leaves, active, entries, free_entries, bodies, body_range,
-                 counters, map_keys, map_leaves, i):
+def _insert_body(state, i):
     """Enter dynamic box ``i`` in every leaf of its registered range."""
+    leaves, free_leaves, active, counters = (state.leaves, state.free_leaves, state.active,
+                                             state.counters)
+    entries, free_entries, bodies = state.entries, state.free_entries, state.bodies
+    map_keys, map_leaves, body_range = state.map_keys, state.map_leaves, state.body_range
     bodies[i, BODY_FIRST_ENTRY] = NULL
     for x in range(body_range[i, 0, 0], body_range[i, 1, 0] + 1):
         for y in range(body_range[i, 0, 1], body_range[i, 1, 1] + 1):
@@ -495,8 +494,11 @@ def _insert_body(leaves, free_leaves, active, entries, free_entries, bodies, bod
 
 
 @kernel
-def _remove_body(leaves, entries, free_entries, bodies, counters, i, tick):
+def _remove_body(state, i, tick):
     """Unlink dynamic box ``i`` from all its leaves; a leaf it empties starts cooling."""
+    leaves, entries, free_entries, bodies, counters = (state.leaves, state.entries,
+                                                       state.free_entries, state.bodies,
+                                                       state.counters)
     e = bodies[i, BODY_FIRST_ENTRY]
     while e != NULL:
         leaf = entries[e, ENTRY_LEAF]
@@ -518,9 +520,11 @@ def _remove_body(leaves, entries, free_entries, bodies, counters, i, tick):
 
 
 @kernel
-def _drop_cooled_leaves(leaves, free_leaves, active, counters, map_keys, map_leaves, tick,
-                        cooldown):
+def _drop_cooled_leaves(state, tick, cooldown):
     """Take leaves empty for ``cooldown`` ticks off the active list; drop non-static ones."""
+    leaves, free_leaves, active, counters = (state.leaves, state.free_leaves, state.active,
+                                             state.counters)
+    map_keys, map_leaves = state.map_keys, state.map_leaves
     k = 0
     while k < counters[ACTIVE]:
         leaf = active[k]

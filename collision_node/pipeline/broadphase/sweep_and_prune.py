@@ -17,6 +17,7 @@ Coherence: between ticks boxes move little, so last tick's order is nearly sorte
 insertion sort repairs it in about O(n + moves). When it needs more than
 ``MAX_SWAPS_PER_BODY`` swaps per box (the order changed too much, e.g. bodies came or went, or
 the axis changed) it gives up and a full sort (O(n log n)) runs instead.
+:meth:`SweepAndPrune.validate` (for tests) checks that every list is sorted and complete.
 
 When to use: bodies spread along one axis (a corridor, a conveyor), few bodies, or as a
 robust fallback: it needs no cell size and no domain. It degrades in dense 3-D scenes where
