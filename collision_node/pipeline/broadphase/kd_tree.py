@@ -311,46 +311,48 @@ def _select(keys, perm, start, end, nth):
 
 @kernel
 def _tree_pairs(tree, static, aabbs, n_static, stack, out):
-    perm = tree.perm
-    count = 0
-    compared = 0
-    for p in range(len(perm)):
-        count, tested = _query(tree, aabbs, perm[p], p + 1, stack, out, count, True)
-        compared += tested
+    """Pairs among the dynamic tree's boxes, then of each of them with the static tree's."""
+    count, compared = _query(tree, tree.perm, aabbs, stack, out, 0, True)
     if n_static:
-        for p in range(len(perm)):
-            count, tested = _query(static, aabbs, perm[p], 0, stack, out, count, False)
-            compared += tested
+        count, tested = _query(static, tree.perm, aabbs, stack, out, count, False)
+        compared += tested
     return count, compared
 
 
 @kernel
-def _query(tree, aabbs, a, first, stack, out, count, dynamic):
-    """Pairs of box ``a`` with the boxes at positions >= ``first`` of ``tree``."""
+def _query(tree, queries, aabbs, stack, out, count, dynamic):
+    """Pairs of each box ``queries[p]`` with the boxes of ``tree``; return (count, compared).
+
+    ``dynamic``: ``queries`` is the tree's own ``perm`` and box ``queries[p]`` meets only the
+    boxes at positions after ``p``, so each pair is met once.
+    """
     perm, node_start, node_end, bounds = tree.perm, tree.node_start, tree.node_end, \
         tree.bounds
-    compared = 0
-    stack[0] = 0
-    top = 1
     n_nodes = len(node_start)
-    while top:
-        top -= 1
-        node = stack[top]
-        end = node_end[node]
-        if end <= first or not overlap_across(bounds, node, aabbs, a):
-            continue
-        left = 2 * node + 1
-        if left < n_nodes and node_end[left] > node_start[left]:
-            stack[top] = left
-            stack[top + 1] = left + 1
-            top += 2
-            continue
-        for q in range(max(node_start[node], first), end):
-            b = perm[q]
-            compared += 1
-            hit = overlap_across(aabbs, a, aabbs, b)
-            if dynamic:
-                count = emit_if(out, count, hit, min(a, b), max(a, b))
-            else:
-                count = emit_if(out, count, hit, a, b)
+    compared = 0
+    for p in range(len(queries)):
+        a = queries[p]
+        first = p + 1 if dynamic else 0
+        stack[0] = 0
+        top = 1
+        while top:
+            top -= 1
+            node = stack[top]
+            end = node_end[node]
+            if end <= first or not overlap_across(bounds, node, aabbs, a):
+                continue
+            left = 2 * node + 1
+            if left < n_nodes and node_end[left] > node_start[left]:
+                stack[top] = left
+                stack[top + 1] = left + 1
+                top += 2
+                continue
+            for q in range(max(node_start[node], first), end):
+                b = perm[q]
+                compared += 1
+                hit = overlap_across(aabbs, a, aabbs, b)
+                if dynamic:
+                    count = emit_if(out, count, hit, min(a, b), max(a, b))
+                else:
+                    count = emit_if(out, count, hit, a, b)
     return count, compared

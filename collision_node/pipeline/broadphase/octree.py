@@ -343,8 +343,7 @@ def _build(state, lattice, aabbs, n_static, n_dynamic, tick):
         for x in range(static_range[s, 0, 0], static_range[s, 1, 0] + 1):
             for y in range(static_range[s, 0, 1], static_range[s, 1, 1] + 1):
                 for z in range(static_range[s, 0, 2], static_range[s, 1, 2] + 1):
-                    leaf = _find_or_create_leaf(leaves, free_leaves, counters, map_keys,
-                                                map_leaves, x, y, z)
+                    leaf = _find_or_create_leaf(state, x, y, z)
                     leaves[leaf, LEAF_STATIC_COUNT] += 1
     counters[BIG_STATIC] = big
     start = 0
@@ -440,7 +439,10 @@ def _cell_count(ranges, i):
 
 
 @kernel
-def _find_or_create_leaf(leaves, free_leaves, counters, map_keys, map_leaves, x, y, z):
+def _find_or_create_leaf(state, x, y, z):
+    """Return the leaf of cell (x, y, z), made (and mapped) if there is none."""
+    leaves, free_leaves, counters = state.leaves, state.free_leaves, state.counters
+    map_keys, map_leaves = state.map_keys, state.map_leaves
     key = cell_key(x, y, z)
     leaf = hash_map.find(map_keys, map_leaves, key)
     if leaf != NULL:
@@ -464,16 +466,14 @@ def _find_or_create_leaf(leaves, free_leaves, counters, map_keys, map_leaves, x,
 @kernel
 def _insert_body(state, i):
     """Enter dynamic box ``i`` in every leaf of its registered range."""
-    leaves, free_leaves, active, counters = (state.leaves, state.free_leaves, state.active,
-                                             state.counters)
+    leaves, active, counters = state.leaves, state.active, state.counters
     entries, free_entries, bodies = state.entries, state.free_entries, state.bodies
-    map_keys, map_leaves, body_range = state.map_keys, state.map_leaves, state.body_range
+    body_range = state.body_range
     bodies[i, BODY_FIRST_ENTRY] = NULL
     for x in range(body_range[i, 0, 0], body_range[i, 1, 0] + 1):
         for y in range(body_range[i, 0, 1], body_range[i, 1, 1] + 1):
             for z in range(body_range[i, 0, 2], body_range[i, 1, 2] + 1):
-                leaf = _find_or_create_leaf(leaves, free_leaves, counters, map_keys,
-                                            map_leaves, x, y, z)
+                leaf = _find_or_create_leaf(state, x, y, z)
                 counters[FREE_ENTRIES] -= 1
                 e = free_entries[counters[FREE_ENTRIES]]
                 entries[e, ENTRY_BODY] = i
