@@ -40,8 +40,9 @@ holds:
     :class:`~.validation.InvalidStructure` (an AssertionError) naming the first
     inconsistency. A dynamic structure made for other counts (bodies came or went, or
     set_static changed the static count) is checked on its own only, as the next find_pairs
-    makes a new one. Plain Python and numpy, never called on the tick path: call it from
-    tests, after any call, before the boxes change again.
+    makes a new one: after a set_static on boxes whose dynamic rows are not the last tick's
+    (the World writes new storage), pass ``n_dynamic=0``. Plain Python and numpy, never
+    called on the tick path: call it from tests, after any call, before the boxes change.
 ``name``
     The phase's name in :data:`NAMES`; ``auto`` sets it to the phase that ran last.
 ``stats``
