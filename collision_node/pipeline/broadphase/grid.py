@@ -140,8 +140,9 @@ class Grid:
         See :func:`~.cell_table.validate_table`: the static table (once built) holds every
         static box, a loose one in the cells it was entered in; the dynamic table holds the
         dynamic boxes of the last tick and, when there are static boxes, has the static
-        table's lattice and buckets (the pair loop reads the two bucket by bucket). A dynamic table made for other counts
-        than ``n_static`` and ``n_dynamic`` is left alone: the next tick fills a new one.
+        table's lattice and buckets (the pair loop reads the two bucket by bucket). A dynamic
+        table made for other counts than ``n_static`` and ``n_dynamic`` is left alone: the
+        next tick fills a new one.
         """
         loose = loose_mask(loose, n_static)
         aabbs = boxes.aabbs
