@@ -48,31 +48,43 @@ def statics_table(rows_ids, categories, masks, ignorable):
 
 
 @kernel
-def check_scene(poses, half_extents, n_static, statics, centers, rotations, extents, aabbs,
-                radii, box_margins, margin, pad, sphere_prefilter, filtering, categories,
-                masks, ignored_keys, dynamic_ignorable):
+def check_scene(poses, half_extents, last_poses, last_half_extents, last_valid, n_static,
+                statics, centers, rotations, extents, aabbs, radii, box_margins, margin, pad,
+                sphere_prefilter, checked):
     """Check the D bodies of ``poses`` against each other and the static rows, in one pass.
 
     Dynamic body i is written to row ``n_static + i``. ``half_extents`` has one row per body
     or one for all; ``margin`` None (no margin at all) or the World's, ``box_margins`` None or
-    one per row, ``pad`` half the margin (the dynamic bounds' padding). Returns (contacts,
-    stats (4,) int64, first invalid body or -1, its obb reason code, 1 if the SAT met NaN).
+    one per row, ``pad`` half the margin (the dynamic bounds' padding), ``checked`` the pairs
+    the filters let through (:func:`checked_pairs`; None: all). ``last_poses`` and
+    ``last_half_extents`` hold the last checked input when ``last_valid[0]`` is 1: the same
+    input again is not checked (``same`` 1); any other is copied there once checked.
+    Returns (contacts, (compared, candidates, filtered, SAT tests), first invalid body or -1,
+    its obb reason code, 1 if the SAT met NaN, same).
     """
+    if last_valid[0] == 1 and same_input(last_poses, poses, last_half_extents, half_extents):
+        return np.empty(0, CONTACT_DTYPE), (0, 0, 0, 0), -1, VALID, 0, 1
+    last_valid[0] = 0
     stats = np.zeros(4, np.int64)
     ids, floats = _scratch(len(poses), len(statics))
     bad, code, count, invalid = _check_state(
         poses, 0, len(poses), half_extents, n_static, statics, centers, rotations, extents,
-        aabbs, radii, box_margins, margin, pad, sphere_prefilter, filtering, categories,
-        masks, ignored_keys, dynamic_ignorable, ids, floats, 0, stats)
+        aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked, ids, floats, 0,
+        stats)
     out = np.empty(count, CONTACT_DTYPE)
     _write_contacts(out, ids, floats, 0, count, statics, None)
-    return out, stats, bad, code, invalid
+    if bad < 0 and not invalid:
+        last_poses[:] = poses
+        last_half_extents[:] = half_extents
+        last_valid[0] = 1
+    return (out, (stats[COMPARED], stats[CANDIDATES], stats[FILTERED], stats[SAT_TESTS]), bad,
+            code, invalid, 0)
 
 
 @kernel
 def check_states(poses, bodies, half_extents, n_static, statics, centers, rotations, extents,
-                 aabbs, radii, box_margins, margin, pad, sphere_prefilter, filtering,
-                 categories, masks, ignored_keys, dynamic_ignorable, first_state, stop_state):
+                 aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked,
+                 first_state, stop_state):
     """Check states ``[first_state, stop_state)`` of ``poses`` ((K·D, 7), D = ``bodies``).
 
     Each state's bodies are written to rows ``n_static ..`` of the given arrays (a chunk of
@@ -88,8 +100,8 @@ def check_states(poses, bodies, half_extents, n_static, statics, centers, rotati
             ids, floats = _grown(ids, floats, count + _pairs(bodies, len(statics)))
         bad, code, count, invalid = _check_state(
             poses, state * bodies, bodies, half_extents, n_static, statics, centers, rotations,
-            extents, aabbs, radii, box_margins, margin, pad, sphere_prefilter, filtering,
-            categories, masks, ignored_keys, dynamic_ignorable, ids, floats, count, stats)
+            extents, aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked, ids,
+            floats, count, stats)
         if bad >= 0 or invalid:
             return np.empty(0, STATE_CONTACT_DTYPE), stats, state, bad, code, invalid
         ends[state - first_state] = count
@@ -100,6 +112,47 @@ def check_states(poses, bodies, half_extents, n_static, statics, centers, rotati
         _write_contacts(out, ids, floats, start, end, statics, state)
         start = end
     return out, stats, -1, -1, VALID, 0
+
+
+@kernel
+def same_input(poses, other_poses, half_extents, other_half_extents):
+    """Whether two inputs are the same, bit for bit (NaN is never the same)."""
+    if poses.shape != other_poses.shape or half_extents.shape != other_half_extents.shape:
+        return False
+    for i in range(poses.shape[0]):
+        for k in range(7):
+            if not poses[i, k] == other_poses[i, k]:
+                return False
+    for i in range(half_extents.shape[0]):
+        for k in range(3):
+            if not half_extents[i, k] == other_half_extents[i, k]:
+                return False
+    return True
+
+
+@kernel
+def checked_pairs(bodies, statics, categories, masks, ignored_keys, dynamic_ignorable):
+    """Return which pairs the filters let through: (D, D + S) bool, as the pass visits them.
+
+    Entry [a, j] is the pair of body a and dynamic body j (j < D, j > a) or static collider
+    j - D of ``statics``; both filter rules (filters.pair_checked), decided once per set of
+    bodies and settings instead of once per pair and state.
+    """
+    checked = np.ones((bodies, bodies + len(statics)), np.bool_)
+    for a in range(bodies):
+        for j in range(a + 1, bodies + len(statics)):
+            if j < bodies:
+                category_b, mask_b, ignorable_b = dynamic_bits(j, categories, masks,
+                                                               dynamic_ignorable)
+                key_b = j
+            else:
+                category_b = statics[j - bodies, CATEGORY]
+                mask_b = statics[j - bodies, MASK]
+                ignorable_b = statics[j - bodies, IGNORABLE] != 0
+                key_b = static_key(statics[j - bodies, ID])
+            checked[a, j] = pair_checked(a, key_b, category_b, mask_b, ignorable_b, categories,
+                                         masks, ignored_keys, dynamic_ignorable)
+    return checked
 
 
 @kernel
@@ -126,9 +179,8 @@ def _grown(ids, floats, needed):
 
 @inlined_kernel
 def _check_state(poses, first, bodies, half_extents, n_static, statics, centers, rotations,
-                 extents, aabbs, radii, box_margins, margin, pad, sphere_prefilter, filtering,
-                 categories, masks, ignored_keys, dynamic_ignorable, ids, floats, count,
-                 stats):
+                 extents, aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked,
+                 ids, floats, count, stats):
     """Write one state's boxes and append its reported pairs to ``ids``/``floats``.
 
     Returns (first invalid body or -1, its reason code, the new count, 1 if the SAT met NaN).
@@ -148,36 +200,28 @@ def _check_state(poses, first, bodies, half_extents, n_static, statics, centers,
                 aabbs[n_static + i, 0, m] -= pad
                 aabbs[n_static + i, 1, m] += pad
             radii[n_static + i] += pad
+    # Counted in registers: an array element bumped per pair is a store per pair.
+    compared = candidates = filtered = sat_tests = 0
     for a in range(bodies):
         row_a = n_static + a
         box_a = box(centers, rotations, extents, radii, row_a)
         # b: the dynamic bodies after a (by id), then the statics by id.
         for j in range(a + 1, bodies + len(statics)):
             if j < bodies:
-                row_b, b, key_b = n_static + j, j, j
+                row_b, b = n_static + j, j
             else:
-                row_b, b, key_b = statics[j - bodies, ROW], bodies - 1 - j, \
-                    static_key(statics[j - bodies, ID])
-            stats[COMPARED] += 1
+                row_b, b = statics[j - bodies, ROW], bodies - 1 - j
+            compared += 1
             if not aabbs_overlap(aabbs, row_a, row_b):
                 continue
-            stats[CANDIDATES] += 1
-            if filtering:
-                if j < bodies:
-                    category_b, mask_b, ignorable_b = dynamic_bits(j, categories, masks,
-                                                                   dynamic_ignorable)
-                else:
-                    category_b = statics[j - bodies, CATEGORY]
-                    mask_b = statics[j - bodies, MASK]
-                    ignorable_b = statics[j - bodies, IGNORABLE] != 0
-                if not pair_checked(a, key_b, category_b, mask_b, ignorable_b, categories,
-                                    masks, ignored_keys, dynamic_ignorable):
-                    stats[FILTERED] += 1
-                    continue
+            candidates += 1
+            if checked is not None and not checked[a, j]:
+                filtered += 1
+                continue
             tested, status, depth, normal, point = collide_boxes(
                 box_a, box(centers, rotations, extents, radii, row_b), sphere_prefilter,
                 pair_margin(margin, box_margins, row_a, row_b))
-            stats[SAT_TESTS] += tested
+            sat_tests += tested
             if status == INVALID:
                 return -1, VALID, count, 1
             if status == COLLIDING or status == NEAR:
@@ -188,6 +232,10 @@ def _check_state(poses, first, bodies, half_extents, n_static, statics, centers,
                     floats[count, 1 + m] = normal[m]
                     floats[count, 4 + m] = point[m]
                 count += 1
+    stats[COMPARED] += compared
+    stats[CANDIDATES] += candidates
+    stats[FILTERED] += filtered
+    stats[SAT_TESTS] += sat_tests
     return -1, VALID, count, 0
 
 

@@ -5,6 +5,8 @@ signature. The node calls :func:`warm_up` before it subscribes, the benchmarks b
 time: it runs every broad phase and every mode of the World (still bodies, margins, filters,
 continuous checks, moving colliders, threads) on a small random scene of its own.
 """
+import itertools
+
 import numpy as np
 
 from collision_node.pipeline.broadphase import NAMES
@@ -13,10 +15,12 @@ from collision_node.pipeline.contacts import (assemble_contacts, DYNAMIC, MIN_PA
                                               orient_pairs, STATIC)
 from collision_node.pipeline.sat import COLLIDING, empty_output
 from collision_node.pipeline.workers import Workers
-from collision_node.pipeline.world import World
+from collision_node.pipeline.world import ONE_PASS_PAIRS, ONE_PASS_PHASES, World
 
 WARM_UP_BODIES = 64  # half static: enough for every broad phase to run its full code path
 AUTO_SPREAD_BODIES = 2 * GRID_BODIES  # auto measures the boxes' spread from this many bodies
+# Half static, half dynamic (n/2 · (n/2 - 1) / 2 + n²/4 pairs): past ONE_PASS_PAIRS.
+ONE_PASS_BODIES = 2 * int(np.sqrt(4.0 * ONE_PASS_PAIRS / 3.0)) + 8
 
 
 class _Scene:
@@ -73,17 +77,40 @@ def warm_up():
                 world.step(scene.half_moved(1.0), extents[0])
                 world.step(scene.dynamic_poses(1.5)[:1], extents[0])
                 world.step(np.zeros((0, 7)), extents[0])
-    large = _Scene(AUTO_SPREAD_BODIES)
-    world = World(broad_phase='auto')
-    world.set_static(large.static_poses, large.static_half_extents)
-    world.step(large.dynamic_poses(0.0), large.dynamic_half_extents)
-    # Margins (padded bounds, exact distances) and filters (masks per body, ignored pairs).
-    world = World(broad_phase='brute_force', margin=0.1)
-    world.set_static(scene.static_poses, scene.static_half_extents, margins=0.05, masks=3)
-    world.set_filters(categories=np.arange(len(extents)) % 2 + 1,
-                      ignored_pairs=[(0, DYNAMIC, 1, DYNAMIC), (0, DYNAMIC, 0, STATIC)])
-    world.step(scene.dynamic_poses(0.0), extents)
-    world.step(scene.half_moved(0.5), extents)
+    # Brute force and auto past the one-pass pairs (their general path), and auto measuring
+    # the boxes' spread (from AUTO_SPREAD_BODIES bodies on).
+    for bodies, names in ((ONE_PASS_BODIES, ONE_PASS_PHASES), (AUTO_SPREAD_BODIES, ('auto',))):
+        large = _Scene(bodies)
+        for name in names:
+            world = World(broad_phase=name)
+            world.set_static(large.static_poses, large.static_half_extents)
+            world.step(large.dynamic_poses(0.0), large.dynamic_half_extents)
+            world.step(large.half_moved(0.5), large.dynamic_half_extents)
+    # Margins (padded bounds, exact distances), the World's alone, then with the colliders'
+    # own, and filters (masks per body, ignored pairs): in one pass and past it.
+    for margins in (scene, _Scene(ONE_PASS_BODIES)):
+        sizes = margins.dynamic_half_extents
+        world = World(broad_phase='brute_force', margin=0.1)
+        world.set_static(margins.static_poses, margins.static_half_extents)
+        world.step(margins.dynamic_poses(0.0), sizes)
+        world = World(broad_phase='brute_force', margin=0.1)
+        world.set_static(margins.static_poses, margins.static_half_extents, margins=0.05,
+                         masks=3)
+        world.set_filters(categories=np.arange(len(sizes)) % 2 + 1,
+                          ignored_pairs=[(0, DYNAMIC, 1, DYNAMIC), (0, DYNAMIC, 0, STATIC)])
+        world.step(margins.dynamic_poses(0.0), sizes)
+        world.step(margins.half_moved(0.5), sizes)
+    # The one pass and batches of states in every combination of margins (the World's, the
+    # colliders' own) and filters: each is a compiled variant of its own.
+    states = np.array([scene.dynamic_poses(t) for t in (0.0, 0.5)])
+    for margin, own, filters in itertools.product((0.0, 0.1), (0.0, 0.05), (False, True)):
+        world = World(broad_phase='brute_force', margin=margin)
+        world.set_static(scene.static_poses, scene.static_half_extents, margins=own)
+        if filters:
+            world.set_filters(ignored_pairs=[(0, DYNAMIC, 1, DYNAMIC)])
+        for sizes in (extents, extents[0]):
+            world.step(states[0], sizes)
+            world.check_states(states, sizes)
     # Continuous checking (swept bounds, advancement, pairs touching only in between), with
     # and without margins: a bullet through a wall besides the scene.
     bullet = np.array([[0.0, 0.0, -2.0, 0.0, 0.0, 0.0, 1.0]])

@@ -57,7 +57,7 @@ from collision_node.pipeline.obb import (Boxes, InvalidBox, MAX_COORDINATE, over
 from collision_node.pipeline.sat import (collide_pairs, COLLIDING, empty_output, INVALID,
                                          NEAR)
 from collision_node.pipeline.small_scene import (CANDIDATES, check_scene, check_states,
-                                                 COMPARED, FILTERED, SAT_TESTS,
+                                                 checked_pairs, COMPARED, FILTERED, SAT_TESTS,
                                                  STATE_CONTACT_DTYPE, statics_table)
 from collision_node.pipeline.static_scene import StaticScene
 from collision_node.pipeline.workers import Workers
@@ -98,10 +98,11 @@ LOOSE_REBUILD_WORK = 100
 
 
 # Small scenes are checked in one compiled pass (small_scene.py) when the broad phase is one of
-# these (the pass is brute force) and a tick has at most this many pairs to test: about 10 µs
-# of AABB tests, where the general path's stages cost ~50 µs of calls however few the bodies.
+# these (the pass is brute force) and a tick has at most this many pairs to test, about 25 µs
+# of AABB tests: the general path's stages cost ~60 µs of calls however few the bodies, and
+# its broad phases catch up with testing every pair at about 4x this many (doc/benchmarks.md).
 ONE_PASS_PHASES = ('auto', 'brute_force')
-ONE_PASS_PAIRS = 4096
+ONE_PASS_PAIRS = 16384
 # Least states in a chunk when check_states spreads them over threads (~1 µs a state).
 MIN_STATES_PER_CHUNK = 256
 
@@ -125,6 +126,11 @@ class Result:
         if self._stats is None:
             self._stats = _one_pass_stats(self.contacts, *self._counters)
         return self._stats
+
+    @property
+    def counters(self):
+        """Return the one-pass counters the stats are built from (None: stats were given)."""
+        return self._counters
 
     def __iter__(self):
         return iter((self.contacts, self.stats))
@@ -158,6 +164,24 @@ class _Last(NamedTuple):
     half_extents: np.ndarray
     result: Result
     version: int
+
+
+class _OnePass:
+    """What one-pass steps read besides their input, for one version of the World."""
+
+    __slots__ = ('version', 'n_static', 'arguments', 'last_poses', 'last_half_extents',
+                 'half_extents_shape', 'last_valid', 'result')
+
+    def __init__(self, version, n_static, arguments, last_poses, last_half_extents,
+                 half_extents_shape):
+        self.version = version
+        self.n_static = n_static
+        self.arguments = arguments  # check_scene's, after the input's
+        self.last_poses = last_poses  # the last input checked, while last_valid[0] is 1
+        self.last_half_extents = last_half_extents  # (1, 3) or (D, 3)
+        self.half_extents_shape = half_extents_shape  # as the caller gives them
+        self.last_valid = np.zeros(1, np.int64)
+        self.result = None  # its answer
 
 
 class _Sweep(NamedTuple):
@@ -249,6 +273,8 @@ class World:
         self._pairs_by_row = np.zeros((0, 2), np.int64)  # the candidate pairs, as the SAT reads
         self._row_starts = np.zeros(1, np.int64)  # their counting sort's scratch
         self._loose_buffer = PairBuffer()
+        self._phase_rows = 0  # dynamic rows the phase's structure holds as they are (validate)
+        self._one_pass = None  # _OnePass of the current version
         self._rebuild_static()
 
     # ------------------------------------------------------------------ settings
@@ -444,6 +470,7 @@ class World:
         """Let the broad phase build its static structure from the current boxes."""
         self._phase.set_static(self._boxes, self._static.count)
         self._loose = _Loose(self._static.count)
+        self._phase_rows = 0
 
     def _changed(self):
         """Record a change after which no earlier result holds (module docstring)."""
@@ -461,12 +488,26 @@ class World:
         without a SAT. The result's contacts are read-only: later steps reuse them.
         """
         start = time.perf_counter()
+        one_pass = self._one_pass
+        # The one pass as last time (a robot's tick): the input as it was, gathered arguments.
+        if one_pass is not None and one_pass.version == self._version \
+                and type(poses) is np.ndarray and poses.shape == one_pass.last_poses.shape \
+                and type(half_extents) is np.ndarray \
+                and half_extents.shape == one_pass.half_extents_shape \
+                and poses.dtype == half_extents.dtype == np.float64 \
+                and poses.flags.c_contiguous and half_extents.flags.c_contiguous:
+            return self._one_pass_step(poses, half_extents, one_pass, start)
         poses = _as_poses(poses)
         half_extents = np.asarray(half_extents, dtype=np.float64)
         n = len(poses)
         if not self._continuous and self._phase_name in ONE_PASS_PHASES \
                 and n * (n - 1) // 2 + n * self._static.count <= ONE_PASS_PAIRS:
-            return self._one_pass_step(poses, half_extents, start)
+            extents = _per_body_extents(half_extents, n)
+            if one_pass is None or one_pass.version != self._version \
+                    or one_pass.last_poses.shape != poses.shape \
+                    or one_pass.half_extents_shape != half_extents.shape:
+                one_pass = self._one_pass = self._new_one_pass(n, extents, half_extents.shape)
+            return self._one_pass_step(poses, extents, one_pass, start)
         self._filter.check_count(len(poses))
         last = self._last if self._last is not None \
             and self._last.version >= self._rebuilt_at else None
@@ -517,34 +558,56 @@ class World:
         self._previous = self._last.poses
         return result
 
-    def _one_pass_step(self, poses, half_extents, start):
+    def _one_pass_step(self, poses, half_extents, one_pass, start):
         """Check a small scene in one compiled pass (small_scene.py): step's answer, to the bit.
 
-        It keeps no coherence: nothing of it is reused by the next step, and the rows it
-        writes are the general path's to rewrite (a change, for the versions).
+        What the pass reads besides the input was gathered for this version of the World
+        (:class:`_OnePass`); an input identical to the last one returns its answer again. The
+        general path keeps nothing of a one-pass step: the rows it writes are its to rewrite.
         """
-        count = len(poses)
-        extents = _per_body_extents(half_extents, count)
-        self._filter.check_count(count)
-        n_static = self._static.count
-        if n_static + count > self._boxes.capacity:
-            self._boxes = self._boxes.grown(2 * (n_static + count), n_static)
-            self._build_static_structure()
-        boxes, filters = self._boxes, self._filter
-        contacts, counters, bad, code, invalid = check_scene(
-            poses, extents, n_static, self._static.by_id, boxes.centers, boxes.rotations,
-            boxes.half_extents, boxes.aabbs, boxes.radii, *self._margin_arguments(),
-            self._sphere_prefilter, self._filtering, filters.categories, filters.masks,
-            filters.ignored_keys, filters.dynamic_ignorable)
-        self._changed()
+        if half_extents.ndim == 1:
+            half_extents = half_extents.reshape(1, 3)
+        contacts, counters, bad, code, invalid, same = check_scene(
+            poses, half_extents,
+            one_pass.last_poses, one_pass.last_half_extents, one_pass.last_valid,
+            *one_pass.arguments)
+        if same:
+            return Result(one_pass.result.contacts,
+                          counters=one_pass.result.counters[:-1] + (True,))
+        self._last = None  # the general path's coherence: its rows were overwritten
+        self._phase_rows = 0
         if bad >= 0:
             raise InvalidBox(int(bad), REASONS[code])
         if invalid:
             raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
         contacts.flags.writeable = False
-        self._previous = poses.copy()  # where a continuous step would sweep from
-        return Result(contacts, counters=(count, n_static, counters,
-                                          1e3 * (time.perf_counter() - start)))
+        one_pass.result = Result(contacts, counters=(
+            len(poses), one_pass.n_static, counters, 1e3 * (time.perf_counter() - start), None,
+            False))
+        self._previous = one_pass.last_poses  # where a continuous step would sweep from
+        return one_pass.result
+
+    def _new_one_pass(self, count, extents, given_shape):
+        """Gather what one-pass steps of ``count`` bodies read besides their input."""
+        self._filter.check_count(count)
+        n_static = self._static.count
+        if n_static + count > self._boxes.capacity:
+            self._boxes = self._boxes.grown(2 * (n_static + count), n_static)
+            self._build_static_structure()
+        boxes = self._boxes
+        arguments = (n_static, self._static.by_id, boxes.centers, boxes.rotations,
+                     boxes.half_extents, boxes.aabbs, boxes.radii, *self._margin_arguments(),
+                     self._sphere_prefilter, self._filter_table(count))
+        return _OnePass(self._version, n_static, arguments, np.empty((count, 7)),
+                        np.empty(extents.shape), given_shape)
+
+    def _filter_table(self, count):
+        """Return small_scene.checked_pairs for ``count`` bodies, or None: no filter at all."""
+        if not self._filtering:
+            return None
+        filters = self._filter
+        return checked_pairs(count, self._static.by_id, filters.categories, filters.masks,
+                             filters.ignored_keys, filters.dynamic_ignorable)
 
     def _margin_arguments(self):
         """Return (box margins or None, margin or None, bound padding) for the SAT kernels."""
@@ -578,15 +641,15 @@ class World:
             contacts, counters = self._states_in_one_pass(states, extents)
         contacts.flags.writeable = False
         return Result(contacts, counters=(bodies, self._static.count, counters,
-                                          1e3 * (time.perf_counter() - start), count))
+                                          1e3 * (time.perf_counter() - start), count, False))
 
     def _states_in_one_pass(self, states, extents):
         """Return the contacts and counters of small ``states``, chunks of them over threads."""
         count, bodies = states.shape[:2]
         poses = states.reshape(-1, 7)
         n_static = self._static.count
-        filters = self._filter
         margin_arguments = self._margin_arguments()
+        checked = self._filter_table(bodies)
 
         def chunk(_, first, stop):
             # Each chunk writes its states' boxes to rows of its own, after a copy of the
@@ -596,9 +659,7 @@ class World:
                 poses, bodies, extents, n_static, self._static.by_id, boxes.centers,
                 boxes.rotations, boxes.half_extents, boxes.aabbs, boxes.radii,
                 boxes.margins if margin_arguments[0] is not None else None,
-                *margin_arguments[1:], self._sphere_prefilter, self._filtering,
-                filters.categories, filters.masks, filters.ignored_keys,
-                filters.dynamic_ignorable, first, stop)
+                *margin_arguments[1:], self._sphere_prefilter, checked, first, stop)
 
         parts = self._workers.map_ranges(chunk, count, MIN_STATES_PER_CHUNK)
         for contacts, _, state, body, code, invalid in parts:
@@ -653,6 +714,7 @@ class World:
         if n_static + n_dynamic > self._boxes.capacity:
             self._boxes = self._boxes.grown(2 * (n_static + n_dynamic), n_static)
             self._build_static_structure()
+            self._version += 1  # new storage: a one-pass step gathers it again
             written = None  # the dynamic rows were not copied
         self._dynamic.ticks_since_sort += 1
         if len(self._dynamic.ids) != n_dynamic or self._dynamic.stale(poses, half_extents):
@@ -664,6 +726,7 @@ class World:
                                  bodies, self._workers)
         except InvalidBox:
             self._changed()  # rows before the refused body hold its input: rewrite them all
+            self._phase_rows = 0
             raise
         if mode == SWEPT:
             self._sweep_bounds(poses, half_extents)
@@ -686,6 +749,7 @@ class World:
             # pair it with the bodies that kept their pose too.
             moved_rows = None
         pairs, compared = self._phase.find_pairs(self._boxes, n_static, n_dynamic, moved_rows)
+        self._phase_rows = n_dynamic
         if len(loose.rows):
             pairs, loose_compared = self._loose_buffer.fill(
                 _with_loose_statics, pairs, loose.flags, loose.rows, self._boxes.aabbs,
@@ -839,7 +903,8 @@ class World:
 
         The scene itself, the static rows derived from it (the enabled colliders, each row's
         box written from its collider's pose and size), the loose rows, and the broad phase's
-        own structure where the phase can check it.
+        own structure (its static part; its dynamic part as of its last pairs, unless rows
+        were written since without it).
         """
         self._scene.validate()
         colliders = self._scene.colliders
@@ -864,9 +929,7 @@ class World:
                               colliders.margins[static.slots]), 'a static row has another margin'
         assert np.array_equal(self._loose.rows, np.flatnonzero(self._loose.flags)), \
             'loose rows and flags disagree'
-        check = getattr(self._phase, 'validate', None)
-        if check is not None:
-            check(self._boxes, static.count, len(self._dynamic.ids), self._loose.flags)
+        self._phase.validate(self._boxes, static.count, self._phase_rows, self._loose.flags)
 
     def close(self):
         """Stop the World's helper threads (none with ``threads=1``)."""
@@ -887,20 +950,20 @@ def _as_poses(poses):
 def _per_body_extents(half_extents, count):
     """Return half extents (3,) as one row (1, 3), or (count, 3) as they are; else refuse."""
     if half_extents.shape == (3,):
-        return half_extents.reshape(1, 3)
+        return np.ascontiguousarray(half_extents).reshape(1, 3)
     if half_extents.shape != (count, 3):
         raise ValueError('half extents must have shape (3,) or (%d, 3), got %s'
                          % (count, half_extents.shape))
     return np.ascontiguousarray(half_extents)
 
 
-def _one_pass_stats(contacts, n_dynamic, n_static, counters, total_ms, states=None):
+def _one_pass_stats(contacts, n_dynamic, n_static, counters, total_ms, states, reused):
     """Return the stats dict of a one-pass step (or check_states), as step's stats read."""
     stats = {'broad_phase': 'brute_force', 'dynamic_bodies': n_dynamic,
              'static_bodies': n_static, 'compared': int(counters[COMPARED]),
              'candidate_pairs': int(counters[CANDIDATES]),
              'filtered_pairs': int(counters[FILTERED]), 'sat_tests': int(counters[SAT_TESTS]),
-             'reused': False, 'still_bodies': 0, 'continuous': OFF, 'swept_pairs': 0,
+             'reused': reused, 'still_bodies': 0, 'continuous': OFF, 'swept_pairs': 0,
              'advance_steps': 0, 'unresolved_pairs': 0, 'broad_phase_stats': {},
              'prepare_ms': 0.0, 'broad_ms': 0.0, 'narrow_ms': total_ms,
              'total_ms': total_ms}
