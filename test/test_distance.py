@@ -508,7 +508,7 @@ from collision_node.pipeline import distance, sat
 assert type(distance.box_distance._cache).__name__ == 'FunctionCache'
 print(sat.signed_distance(np.zeros(3), np.eye(3), np.ones(3), np.full(3, 3.0),
                           np.eye(3), np.ones(3))[0])
-print(sum(sat._collide_pairs.stats.cache_hits.values()))
+print(sum(sat.collide_pair_rows.stats.cache_hits.values()))
 """
 
 

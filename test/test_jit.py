@@ -125,7 +125,7 @@ assert obb.__file__.startswith(sys.argv[1]), obb.__file__
 obb.spheres_apart(np.zeros((2, 3)), np.ones(2), 0, 1)
 print(obb.spheres_apart._cache._cache_path)
 print(sum(obb.spheres_apart.stats.cache_hits.values()))
-print(sat._collide_pairs._cache._cache_path)
+print(sat.collide_pair_rows._cache._cache_path)
 """
 
 

@@ -37,18 +37,6 @@ def kernel(function):
     return dispatcher
 
 
-def inlined_kernel(function):
-    """Compile ``function`` to be inlined into the kernels that call it (numba IR).
-
-    For per-item helpers that take arrays and are called in a kernel's loop (one pair, one
-    box): a call numba does not inline reference-counts every array it is handed (two atomic
-    operations each, per call), which costs more than the helper's own work.
-    """
-    dispatcher = _njit(function, dict(JIT_OPTIONS, inline='always'))
-    KERNELS.add(dispatcher)
-    return dispatcher
-
-
 def _njit(function, options):
     try:
         return numba.njit(**options)(function)

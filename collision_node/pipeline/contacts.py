@@ -10,7 +10,7 @@ is the first time in the tick's interval [0, 1] at which the pair came within it
 """
 import numpy as np
 
-from collision_node.pipeline._jit import inlined_kernel, kernel
+from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.sat import COLLIDING, NEAR
 
 DYNAMIC = 0  # body types, MoveIt's body_type convention
@@ -204,7 +204,7 @@ def _assemble(pairs, colliding, first_body, stop_body, depth, normal, point, n_s
         row = ends[body]
         ends[body] = row + 1
         b = pairs[k, 1]
-        write_contact(out, row, (point[k, 0], point[k, 1], point[k, 2]),
+        write_contact(out[row], (point[k, 0], point[k, 1], point[k, 2]),
                       (normal[k, 0], normal[k, 1], normal[k, 2]), depth[k],
                       1.0 if toi is None else toi[k], body,
                       static_ids[b] if b < n_static else dynamic_ids[b - n_static],
@@ -228,22 +228,25 @@ def _assemble(pairs, colliding, first_body, stop_body, depth, normal, point, n_s
         start = end
 
 
-@inlined_kernel
-def write_contact(out, row, point, normal, depth, toi, id_a, id_b, type_b):
-    """Write a pair's contact to ``out[row]``: ``depth`` as the SAT gives it (< 0: NEAR)."""
-    out[row].x = point[0]
-    out[row].y = point[1]
-    out[row].z = point[2]
-    out[row].normal_x = normal[0]
-    out[row].normal_y = normal[1]
-    out[row].normal_z = normal[2]
-    out[row].depth = max(depth, 0.0)
-    out[row].distance = -depth  # a NEAR pair's depth is minus its distance
-    out[row].toi = toi
-    out[row].id_a = id_a
-    out[row].type_a = DYNAMIC
-    out[row].id_b = id_b
-    out[row].type_b = type_b
+@kernel
+def write_contact(row, point, normal, depth, toi, id_a, id_b, type_b):
+    """Write a pair's contact to the record ``row``: ``depth`` as the SAT gives it (< 0: NEAR).
+
+    A record, not its array: a call numba does not inline reference-counts an array.
+    """
+    row.x = point[0]
+    row.y = point[1]
+    row.z = point[2]
+    row.normal_x = normal[0]
+    row.normal_y = normal[1]
+    row.normal_z = normal[2]
+    row.depth = max(depth, 0.0)
+    row.distance = -depth  # a NEAR pair's depth is minus its distance
+    row.toi = toi
+    row.id_a = id_a
+    row.type_a = DYNAMIC
+    row.id_b = id_b
+    row.type_b = type_b
 
 
 @kernel

@@ -23,7 +23,7 @@ import reprlib
 
 import numpy as np
 
-from collision_node.pipeline._jit import inlined_kernel, kernel
+from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATIC
 
 DEFAULT_CATEGORY = 1
@@ -125,25 +125,47 @@ class PairFilter:
 def _keep_checked(pairs, n_static, static_ids, static_categories, static_masks,
                   static_ignorable, dynamic_ids, categories, masks, ignored_keys,
                   dynamic_ignorable):
+    per_body = len(categories) > 1
+    per_body_mask = len(masks) > 1
     kept = 0
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
         b = pairs[k, 1]
         id_a = dynamic_ids[a - n_static]
+        category_a = categories[id_a if per_body else 0]
+        mask_a = masks[id_a if per_body_mask else 0]
         if b < n_static:
-            keep = pair_checked(id_a, static_key(static_ids[b]), static_categories[b],
-                                static_masks[b], static_ignorable[b], categories, masks,
-                                ignored_keys, dynamic_ignorable)
+            category_b = static_categories[b]
+            mask_b = static_masks[b]
+            key_b = static_key(static_ids[b])
+            ignorable_b = static_ignorable[b]
         else:
             id_b = dynamic_ids[b - n_static]
-            category_b, mask_b, ignorable_b = dynamic_bits(id_b, categories, masks,
-                                                           dynamic_ignorable)
-            keep = pair_checked(id_a, id_b, category_b, mask_b, ignorable_b, categories, masks,
-                                ignored_keys, dynamic_ignorable)
+            category_b = categories[id_b if per_body else 0]
+            mask_b = masks[id_b if per_body_mask else 0]
+            key_b = id_b
+            ignorable_b = id_b < len(dynamic_ignorable) and dynamic_ignorable[id_b]
+        keep = masks_pass(category_a, mask_a, category_b, mask_b)
+        if keep and ignorable_b and id_a < len(dynamic_ignorable) and dynamic_ignorable[id_a]:
+            keep = not ignored(ignored_keys, id_a, key_b)
         pairs[kept, 0] = a
         pairs[kept, 1] = b
         kept += keep
     return kept
+
+
+@kernel
+def masks_pass(category_a, mask_a, category_b, mask_b):
+    """Whether two bodies' categories and masks let their pair be checked (rule 1)."""
+    return (category_a & mask_b) != 0 and (category_b & mask_a) != 0
+
+
+@kernel
+def ignored(ignored_keys, id_a, key_b):
+    """Whether rule 2 drops the pair of dynamic body ``id_a`` and the body of ``key_b``."""
+    key = (np.int64(id_a) << 32) | key_b
+    at = np.searchsorted(ignored_keys, key)
+    return at < len(ignored_keys) and ignored_keys[at] == key
 
 
 @kernel
@@ -152,7 +174,7 @@ def static_key(static_id):
     return static_id | _STATIC_KEY_BIT
 
 
-@inlined_kernel
+@kernel
 def dynamic_bits(body, categories, masks, dynamic_ignorable):
     """Return (category, mask, named in an ignored pair) of dynamic body ``body``."""
     return (categories[body if len(categories) > 1 else 0],
@@ -160,7 +182,7 @@ def dynamic_bits(body, categories, masks, dynamic_ignorable):
             body < len(dynamic_ignorable) and dynamic_ignorable[body])
 
 
-@inlined_kernel
+@kernel
 def pair_checked(id_a, key_b, category_b, mask_b, ignorable_b, categories, masks,
                  ignored_keys, dynamic_ignorable):
     """Whether dynamic body ``id_a`` and body b pass both rules.
@@ -169,9 +191,7 @@ def pair_checked(id_a, key_b, category_b, mask_b, ignorable_b, categories, masks
     whether it is named in an ignored pair.
     """
     category_a, mask_a, ignorable_a = dynamic_bits(id_a, categories, masks, dynamic_ignorable)
-    keep = (category_a & mask_b) != 0 and (category_b & mask_a) != 0
+    keep = masks_pass(category_a, mask_a, category_b, mask_b)
     if keep and ignorable_b and ignorable_a:
-        key = (np.int64(id_a) << 32) | key_b
-        at = np.searchsorted(ignored_keys, key)
-        keep = not (at < len(ignored_keys) and ignored_keys[at] == key)
+        keep = not ignored(ignored_keys, id_a, key_b)
     return keep

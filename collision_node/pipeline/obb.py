@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node.pipeline._jit import inlined_kernel, kernel
+from collision_node.pipeline._jit import kernel
 
 # A quaternion whose norm is within this of 1 is normalised; farther off it is rejected.
 # 1e-3 accepts quaternions printed with 4+ significant digits or stored as float32, and
@@ -104,9 +104,8 @@ def set_boxes(boxes, start, poses, half_extents, rows=None):
     if start + len(poses) > boxes.capacity:
         raise ValueError('storage holds %d boxes, %d needed' % (boxes.capacity,
                                                                 start + len(poses)))
-    if rows is None:
-        rows = np.arange(len(poses))
-    bad, code = _write_boxes(poses, half_extents, start, rows, boxes)
+    bad, code = write_boxes(poses, half_extents, start, rows, boxes.centers, boxes.rotations,
+                            boxes.half_extents, boxes.aabbs, boxes.radii)
     if bad >= 0:
         raise InvalidBox(bad, REASONS[code])
 
@@ -114,7 +113,7 @@ def set_boxes(boxes, start, poses, half_extents, rows=None):
 def check_boxes(poses, half_extents):
     """Raise InvalidBox naming the first body of ``poses`` that set_boxes would refuse.
 
-    Returns the inputs as set_boxes reads them: poses (N, 7) and half extents (N, 3).
+    Returns the inputs as set_boxes reads them: poses (N, 7), half extents (N, 3) or (1, 3).
     """
     poses, half_extents = _as_inputs(poses, half_extents)
     bad, code = _first_problem(poses, half_extents)
@@ -131,43 +130,36 @@ def _as_inputs(poses, half_extents):
                          % (poses.shape,))
     half_extents = np.asarray(half_extents, dtype=np.float64)
     if half_extents.shape == (3,):
-        half_extents = np.broadcast_to(half_extents, (len(poses), 3))
-    if half_extents.shape != (len(poses), 3):
+        half_extents = half_extents.reshape(1, 3)  # one row for all: the kernels' convention
+    elif half_extents.shape != (len(poses), 3):
         raise ValueError('half extents must have shape (3,) or (%d, 3), got %s'
                          % (len(poses), half_extents.shape))
-    # A broadcast view is read-only (and, for 0 or 1 bodies, already contiguous): numba would
-    # compile a separate signature for it during a tick, so make it a writable array.
+    # Writable and contiguous, the one type the kernels are compiled for.
     return poses, np.require(half_extents, np.float64, ['C', 'A', 'W'])
 
 
 @kernel
-def _rotation_from_quaternion(x, y, z, w, out):
-    out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    out[0, 1] = 2.0 * (x * y - z * w)
-    out[0, 2] = 2.0 * (x * z + y * w)
-    out[1, 0] = 2.0 * (x * y + z * w)
-    out[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    out[1, 2] = 2.0 * (y * z - x * w)
-    out[2, 0] = 2.0 * (x * z - y * w)
-    out[2, 1] = 2.0 * (y * z + x * w)
-    out[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+def _rotation_from_quaternion(x, y, z, w):
+    """Return the rotation matrix of a unit quaternion, row-major (9-tuple)."""
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w),
+            2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w),
+            2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y))
 
 
 @kernel
-def _problem(poses, half_extents, i, e):
-    """Return why body i (its half extents row e) cannot be a box (a REASONS code), or VALID."""
+def _problem(pose, half):
+    """Return why ``pose`` and ``half`` (tuples) cannot be a box (a REASONS code), or VALID."""
     for k in range(7):
-        if not math.isfinite(poses[i, k]):
+        if not math.isfinite(pose[k]):
             return NON_FINITE_POSE
     for k in range(3):
-        if abs(poses[i, k]) > MAX_COORDINATE:
+        if abs(pose[k]) > MAX_COORDINATE:
             return OUT_OF_RANGE
-    x, y, z, w = poses[i, 3], poses[i, 4], poses[i, 5], poses[i, 6]
+    x, y, z, w = pose[3], pose[4], pose[5], pose[6]
     if not abs(math.sqrt(x * x + y * y + z * z + w * w) - 1.0) <= QUATERNION_NORM_TOLERANCE:
         return BAD_QUATERNION
     for k in range(3):
-        e_k = half_extents[e, k]
-        if not (math.isfinite(e_k) and 0.0 <= e_k <= MAX_COORDINATE):
+        if not (math.isfinite(half[k]) and 0.0 <= half[k] <= MAX_COORDINATE):
             return BAD_HALF_EXTENTS
     return VALID
 
@@ -176,50 +168,60 @@ def _problem(poses, half_extents, i, e):
 def _first_problem(poses, half_extents):
     """Return (first body that cannot be a box, its REASONS code), or (-1, VALID)."""
     for i in range(poses.shape[0]):
-        code = _problem(poses, half_extents, i, i)
+        code = _problem(_pose(poses, i), _half(half_extents, i))
         if code != VALID:
             return i, code
     return -1, VALID
 
 
 @kernel
-def _write_boxes(poses, half_extents, start, rows, boxes):
-    """Write body i to row ``start + rows[i]``; return (first bad body, reason) or (-1, 0)."""
+def _pose(poses, i):
+    return (poses[i, 0], poses[i, 1], poses[i, 2], poses[i, 3], poses[i, 4], poses[i, 5],
+            poses[i, 6])
+
+
+@kernel
+def _half(half_extents, i):
+    """Return body i's half extents (row i, or the one row for all) as a 3-tuple."""
+    e = i if half_extents.shape[0] > 1 else 0
+    return half_extents[e, 0], half_extents[e, 1], half_extents[e, 2]
+
+
+@kernel
+def write_boxes(poses, half_extents, start, rows, centers, rotations, extents, aabbs, radii):
+    """Write body i to row ``start + rows[i]``; return (first bad body, reason) or (-1, 0).
+
+    ``half_extents``: one row per body, or one row for all; ``rows`` None: row start + i.
+    The bodies before a bad one are written.
+    """
     for i in range(poses.shape[0]):
-        code = write_box(poses, half_extents, i, i, start + rows[i], boxes.centers,
-                         boxes.rotations, boxes.half_extents, boxes.aabbs, boxes.radii)
+        pose = _pose(poses, i)
+        half = _half(half_extents, i)
+        code = _problem(pose, half)
         if code != VALID:
             return i, code
+        # Written here, not by a helper handed the arrays: a call numba does not inline
+        # reference-counts each array it is given, twice the cost of the box itself.
+        if rows is None:
+            b = start + i
+        else:
+            b = start + rows[i]
+        x, y, z, w = pose[3], pose[4], pose[5], pose[6]
+        norm = math.sqrt(x * x + y * y + z * z + w * w)
+        r = _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm)
+        rotations[b, 0, 0], rotations[b, 0, 1], rotations[b, 0, 2] = r[0], r[1], r[2]
+        rotations[b, 1, 0], rotations[b, 1, 1], rotations[b, 1, 2] = r[3], r[4], r[5]
+        rotations[b, 2, 0], rotations[b, 2, 1], rotations[b, 2, 2] = r[6], r[7], r[8]
+        radii[b] = math.sqrt(half[0] * half[0] + half[1] * half[1] + half[2] * half[2])
+        for k in range(3):
+            centers[b, k] = pose[k]
+            extents[b, k] = half[k]
+            reach = abs(r[3 * k]) * half[0] + abs(r[3 * k + 1]) * half[1] \
+                + abs(r[3 * k + 2]) * half[2]
+            reach += AABB_RELATIVE_MARGIN * (reach + abs(pose[k]))
+            aabbs[b, 0, k] = pose[k] - reach
+            aabbs[b, 1, k] = pose[k] + reach
     return -1, VALID
-
-
-@inlined_kernel
-def write_box(poses, half_extents, i, e, b, centers, rotations, extents, aabbs, radii):
-    """Write body i (its pose row i, its half extents row e) to box row b; return a code.
-
-    The code is VALID, or why the body cannot be a box (REASONS); then nothing is written.
-    """
-    code = _problem(poses, half_extents, i, e)
-    if code != VALID:
-        return code
-    x, y, z, w = poses[i, 3], poses[i, 4], poses[i, 5], poses[i, 6]
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
-    # Scattered writes, sequential reads: measured faster than the other way round.
-    _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm, rotations[b])
-    radius_sq = 0.0
-    for k in range(3):
-        centers[b, k] = poses[i, k]
-        extents[b, k] = half_extents[e, k]
-        radius_sq += half_extents[e, k] * half_extents[e, k]
-    radii[b] = math.sqrt(radius_sq)
-    for k in range(3):
-        reach = 0.0
-        for j in range(3):
-            reach += abs(rotations[b, k, j]) * extents[b, j]
-        reach += AABB_RELATIVE_MARGIN * (reach + abs(centers[b, k]))
-        aabbs[b, 0, k] = centers[b, k] - reach
-        aabbs[b, 1, k] = centers[b, k] + reach
-    return VALID
 
 
 @kernel
@@ -266,21 +268,13 @@ def overlap_across(aabbs_a, a, aabbs_b, b):
 def spheres_apart(centers, radii, a, b):
     """Return True when the bounding spheres are apart by more than the touching tolerance.
 
-    Compares squared distances (the "Engine Algorithms" sphere test: no square roots); the
-    radii are stored.
+    Compares squared distances (the paper's "no square roots"); the radii are stored.
     """
-    return centres_apart((centers[a, 0], centers[a, 1], centers[a, 2]),
-                         (centers[b, 0], centers[b, 1], centers[b, 2]), radii[a], radii[b])
-
-
-@kernel
-def centres_apart(center_a, center_b, radius_a, radius_b):
-    """:func:`spheres_apart` for two spheres given as tuples."""
     dist_sq = 0.0
-    scale = radius_a + radius_b
+    scale = radii[a] + radii[b]
     for i in range(3):
-        d = center_b[i] - center_a[i]
+        d = centers[b, i] - centers[a, i]
         dist_sq += d * d
-        scale += abs(center_a[i]) + abs(center_b[i])
-    reach = radius_a + radius_b + TIE_ULPS * EPS * scale
+        scale += abs(centers[a, i]) + abs(centers[b, i])
+    reach = radii[a] + radii[b] + TIE_ULPS * EPS * scale
     return dist_sq > reach * reach

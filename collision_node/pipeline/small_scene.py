@@ -5,9 +5,10 @@ geometry (about 40 pair tests, 1–2 µs) but the calls around it. So a small sc
 one pass: the dynamic boxes are written from the poses, every pair of boxes is tested (AABBs,
 then the filters, then the SAT with margins and exact distances), and the contacts come out in
 the cloud's order, (id_a, type_b, id_b), as the pairs are visited: no pair list, no sort, no
-call per stage. The pass calls the very kernels the general path calls for one body, one pair
-and one contact (obb.write_box, filters.pair_checked, sat.collide_boxes,
-contacts.write_contact), so its answers are the general path's to the bit.
+call per stage. The pass calls the very kernels of the general path: obb.write_boxes writes
+the boxes, filters.pair_checked decides the filters (once per set of bodies: a table), the
+SAT loop sat.collide_pair_rows runs on the pairs a state's AABBs let through, and
+contacts.write_contact writes the rows; so its answers are the general path's to the bit.
 
 :func:`check_states` runs the same pass for K states of the same D bodies, each against the
 static boxes and independent of the others, into one array with each contact's state.
@@ -18,20 +19,21 @@ one row per collider in id order: (row, id, category, mask, named in an ignored 
 """
 import numpy as np
 
-from collision_node.pipeline._jit import inlined_kernel, kernel
+from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.contacts import CONTACT_DTYPE, DYNAMIC, STATIC, write_contact
 from collision_node.pipeline.filters import dynamic_bits, pair_checked, static_key
-from collision_node.pipeline.obb import aabbs_overlap, VALID, write_box
-from collision_node.pipeline.sat import box, collide_boxes, COLLIDING, INVALID, NEAR, pair_margin
+from collision_node.pipeline.obb import aabbs_overlap, VALID, write_boxes
+from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 
-# The contacts of a batch, each with its state's index (the state_collisions cloud's fields).
-STATE_CONTACT_DTYPE = np.dtype(CONTACT_DTYPE.descr + [('state', np.uint32)])
+# The contacts of a batch: each with its state's index, first (it is the first sort key; and
+# so the contacts' fields are not a prefix of these, which numba would take for a subtype).
+STATE_CONTACT_DTYPE = np.dtype([('state', np.uint32)] + CONTACT_DTYPE.descr)
 # Columns of ``statics``.
 ROW, ID, CATEGORY, MASK, IGNORABLE = range(5)
 # Counters of one pass, as its stats array holds them.
 COMPARED, CANDIDATES, FILTERED, SAT_TESTS = range(4)
-# Per reported pair, in the pass's scratch: body a, body b (a static one: -1 - its index in
-# ``statics``), then depth, normal (3) and point (3).
+# Per reported pair, in the pass's output scratch: body a, body b (a static one: -1 - its index
+# in ``statics``), then depth, normal (3) and point (3).
 _FLOATS = 7
 
 
@@ -65,12 +67,10 @@ def check_scene(poses, half_extents, last_poses, last_half_extents, last_valid, 
     if last_valid[0] == 1 and same_input(last_poses, poses, last_half_extents, half_extents):
         return np.empty(0, CONTACT_DTYPE), (0, 0, 0, 0), -1, VALID, 0, 1
     last_valid[0] = 0
-    stats = np.zeros(4, np.int64)
-    ids, floats = _scratch(len(poses), len(statics))
-    bad, code, count, invalid = _check_state(
-        poses, 0, len(poses), half_extents, n_static, statics, centers, rotations, extents,
-        aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked, ids, floats, 0,
-        stats)
+    found, _, stats, _, bad, code, invalid = _check_states(
+        poses, len(poses), half_extents, n_static, statics, centers, rotations, extents,
+        aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked, 0, 1)
+    count, ids, floats = found
     out = np.empty(count, CONTACT_DTYPE)
     _write_contacts(out, ids, floats, 0, count, statics, None)
     if bad < 0 and not invalid:
@@ -91,20 +91,12 @@ def check_states(poses, bodies, half_extents, n_static, statics, centers, rotati
     states owns its arrays) and checked as :func:`check_scene` does. Returns (contacts with
     their state, stats, first invalid state, its body, reason code, SAT met NaN).
     """
-    stats = np.zeros(4, np.int64)
-    ids, floats = _scratch(bodies, len(statics))
-    count = 0
-    ends = np.empty(stop_state - first_state, np.int64)
-    for state in range(first_state, stop_state):
-        if len(ids) - count < _pairs(bodies, len(statics)):
-            ids, floats = _grown(ids, floats, count + _pairs(bodies, len(statics)))
-        bad, code, count, invalid = _check_state(
-            poses, state * bodies, bodies, half_extents, n_static, statics, centers, rotations,
-            extents, aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked, ids,
-            floats, count, stats)
-        if bad >= 0 or invalid:
-            return np.empty(0, STATE_CONTACT_DTYPE), stats, state, bad, code, invalid
-        ends[state - first_state] = count
+    found, ends, stats, failed, bad, code, invalid = _check_states(
+        poses, bodies, half_extents, n_static, statics, centers, rotations, extents, aabbs,
+        radii, box_margins, margin, pad, sphere_prefilter, checked, first_state, stop_state)
+    if bad >= 0 or invalid:
+        return np.empty(0, STATE_CONTACT_DTYPE), stats, failed, bad, code, invalid
+    count, ids, floats = found
     out = np.empty(count, STATE_CONTACT_DTYPE)
     start = 0
     for state in range(first_state, stop_state):
@@ -156,15 +148,94 @@ def checked_pairs(bodies, statics, categories, masks, ignored_keys, dynamic_igno
 
 
 @kernel
-def _pairs(bodies, n_statics):
-    """Return the most pairs one state can report."""
-    return bodies * (bodies - 1) // 2 + bodies * n_statics
+def _check_states(poses, bodies, half_extents, n_static, statics, centers, rotations, extents,
+                  aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked,
+                  first_state, stop_state):
+    """Check states ``[first_state, stop_state)``; return their reported pairs.
+
+    Returns ((count, ids, floats): the reported pairs in order, the end of each state's pairs
+    in them, stats, then (state, body, code) of the first invalid body (-1: none) and 1 if
+    the SAT met NaN. Pairs are visited in the cloud's order: for each body a by id, the dynamic
+    bodies after it, then the static colliders by id; each pair in the frame of its body a,
+    as the general path orients it (contacts.orient_pairs). One call for all states: a
+    call numba does not inline reference-counts every array it is handed.
+    """
+    most = bodies * (bodies - 1) // 2 + bodies * len(statics)  # pairs of one state
+    pairs = np.empty((most, 2), np.int64)
+    owner = np.empty(most, np.int64)  # a candidate's body a
+    which = np.empty(most, np.int64)  # and its b: j as the pass visits them
+    status = np.empty(most, np.int8)
+    depth = np.empty(most)
+    normal = np.empty((most, 3))
+    point = np.empty((most, 3))
+    ids = np.empty((max(most, 1), 2), np.int64)
+    floats = np.empty((max(most, 1), _FLOATS))
+    count = 0
+    ends = np.empty(stop_state - first_state, np.int64)
+    # Counted in registers: an array element bumped per pair is a store per pair.
+    compared = candidates = filtered = sat_tests = 0
+    for state in range(first_state, stop_state):
+        first = state * bodies
+        bad, code = write_boxes(poses[first:first + bodies], half_extents, n_static, None,
+                                centers, rotations, extents, aabbs, radii)
+        if bad >= 0:
+            return ((count, ids, floats), ends, _stats(compared, candidates, filtered, sat_tests),
+                    state, bad, code, 0)
+        if pad > 0.0:  # obb.pad_bounds for the dynamic rows (their own margin is 0)
+            for i in range(n_static, n_static + bodies):
+                for m in range(3):
+                    aabbs[i, 0, m] -= pad
+                    aabbs[i, 1, m] += pad
+                radii[i] += pad
+        n = 0
+        for a in range(bodies):
+            row_a = n_static + a
+            # b: the dynamic bodies after a (by id), then the statics by id.
+            for j in range(a + 1, bodies + len(statics)):
+                row_b = n_static + j if j < bodies else statics[j - bodies, ROW]
+                compared += 1
+                if not aabbs_overlap(aabbs, row_a, row_b):
+                    continue
+                candidates += 1
+                if checked is not None and not checked[a, j]:
+                    filtered += 1
+                    continue
+                pairs[n, 0] = row_a
+                pairs[n, 1] = row_b
+                owner[n] = a
+                which[n] = j
+                n += 1
+        sat_tests += collide_pair_rows(centers, rotations, extents, radii, pairs[:n],
+                                       sphere_prefilter, margin, box_margins, status, depth,
+                                       normal, point)
+        if len(ids) - count < n:
+            ids, floats = _grown(ids, floats, count + n)
+        for k in range(n):
+            if status[k] == INVALID:
+                return ((count, ids, floats), ends,
+                        _stats(compared, candidates, filtered, sat_tests), state, -1, VALID, 1)
+            if status[k] == COLLIDING or status[k] == NEAR:
+                j = which[k]
+                ids[count, 0] = owner[k]
+                ids[count, 1] = j if j < bodies else bodies - 1 - j
+                floats[count, 0] = depth[k]
+                for m in range(3):
+                    floats[count, 1 + m] = normal[k, m]
+                    floats[count, 4 + m] = point[k, m]
+                count += 1
+        ends[state - first_state] = count
+    return ((count, ids, floats), ends, _stats(compared, candidates, filtered, sat_tests), -1,
+            -1, VALID, 0)
 
 
 @kernel
-def _scratch(bodies, n_statics):
-    capacity = max(_pairs(bodies, n_statics), 1)
-    return np.empty((capacity, 2), np.int64), np.empty((capacity, _FLOATS))
+def _stats(compared, candidates, filtered, sat_tests):
+    stats = np.empty(4, np.int64)
+    stats[COMPARED] = compared
+    stats[CANDIDATES] = candidates
+    stats[FILTERED] = filtered
+    stats[SAT_TESTS] = sat_tests
+    return stats
 
 
 @kernel
@@ -177,77 +248,15 @@ def _grown(ids, floats, needed):
     return more_ids, more_floats
 
 
-@inlined_kernel
-def _check_state(poses, first, bodies, half_extents, n_static, statics, centers, rotations,
-                 extents, aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked,
-                 ids, floats, count, stats):
-    """Write one state's boxes and append its reported pairs to ``ids``/``floats``.
-
-    Returns (first invalid body or -1, its reason code, the new count, 1 if the SAT met NaN).
-    Pairs are visited in the cloud's order: for each body a by id, the dynamic bodies after
-    it, then the static colliders by id; each pair in the frame of its body a, as the
-    general path orients it (contacts.orient_pairs). Inlined into its callers, and calling
-    nothing with arrays per pair, so that no array is reference-counted in the loops.
-    """
-    per_body = len(half_extents) > 1
-    for i in range(bodies):
-        code = write_box(poses, half_extents, first + i, i if per_body else 0, n_static + i,
-                         centers, rotations, extents, aabbs, radii)
-        if code != VALID:
-            return i, code, count, 0
-        if pad > 0.0:  # obb.pad_bounds for a dynamic row (its own margin is 0)
-            for m in range(3):
-                aabbs[n_static + i, 0, m] -= pad
-                aabbs[n_static + i, 1, m] += pad
-            radii[n_static + i] += pad
-    # Counted in registers: an array element bumped per pair is a store per pair.
-    compared = candidates = filtered = sat_tests = 0
-    for a in range(bodies):
-        row_a = n_static + a
-        box_a = box(centers, rotations, extents, radii, row_a)
-        # b: the dynamic bodies after a (by id), then the statics by id.
-        for j in range(a + 1, bodies + len(statics)):
-            if j < bodies:
-                row_b, b = n_static + j, j
-            else:
-                row_b, b = statics[j - bodies, ROW], bodies - 1 - j
-            compared += 1
-            if not aabbs_overlap(aabbs, row_a, row_b):
-                continue
-            candidates += 1
-            if checked is not None and not checked[a, j]:
-                filtered += 1
-                continue
-            tested, status, depth, normal, point = collide_boxes(
-                box_a, box(centers, rotations, extents, radii, row_b), sphere_prefilter,
-                pair_margin(margin, box_margins, row_a, row_b))
-            sat_tests += tested
-            if status == INVALID:
-                return -1, VALID, count, 1
-            if status == COLLIDING or status == NEAR:
-                ids[count, 0] = a
-                ids[count, 1] = b
-                floats[count, 0] = depth
-                for m in range(3):
-                    floats[count, 1 + m] = normal[m]
-                    floats[count, 4 + m] = point[m]
-                count += 1
-    stats[COMPARED] += compared
-    stats[CANDIDATES] += candidates
-    stats[FILTERED] += filtered
-    stats[SAT_TESTS] += sat_tests
-    return -1, VALID, count, 0
-
-
 @kernel
 def _write_contacts(out, ids, floats, start, end, statics, state):
-    """Write scratch pairs ``[start, end)`` to the same rows of ``out``, with their ``state``.
+    """Write pairs ``[start, end)`` to the same rows of ``out``, with their ``state``.
 
     ``state`` None: ``out`` has no state field (a None compiles its write out).
     """
     for k in range(start, end):
         b = ids[k, 1]
-        write_contact(out, k, (floats[k, 4], floats[k, 5], floats[k, 6]),
+        write_contact(out[k], (floats[k, 4], floats[k, 5], floats[k, 6]),
                       (floats[k, 1], floats[k, 2], floats[k, 3]), floats[k, 0], 1.0,
                       ids[k, 0], b if b >= 0 else statics[-1 - b, ID],
                       DYNAMIC if b >= 0 else STATIC)
