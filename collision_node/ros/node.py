@@ -222,10 +222,11 @@ class CollisionNode(LifecycleNode):
         self._pending = None  # newest unchecked input, in timer mode
         if config.tick_rate_hz > 0.0:
             self._tick_timer = self.create_timer(1.0 / config.tick_rate_hz,
-                                                 self._gated(self._on_tick_timer, counted=False))
+                                                 self._gated(self._on_tick_timer, lambda: None))
             self._tick_timer.cancel()  # activate starts it
         # Last, after the warm-up: no input is taken before the node can answer it in time.
-        self._subscription = self._create_input(PoseArray, 'dynamic_poses', self._on_input)
+        self._subscription = self._create_input(PoseArray, 'dynamic_poses', self._on_input,
+                                                self._ignore_input)
         self._static_subscription = self._create_input(PoseArray, 'static_poses',
                                                        self._on_static_poses, scene=True)
         self.get_logger().info(
@@ -239,7 +240,6 @@ class CollisionNode(LifecycleNode):
         """Answer inputs from now on: the publishers first, then the gate."""
         result = super().on_activate(state)
         with self._gate:
-            self._last_sequence = None  # gaps are counted from the first input of this run
             self._active = True
             if self._tick_timer is not None:
                 self._tick_timer.reset()
@@ -316,26 +316,28 @@ class CollisionNode(LifecycleNode):
 
     # Inputs.
 
-    def _create_input(self, message_type, topic, callback, scene=False):
+    def _create_input(self, message_type, topic, callback, ignore=None, scene=False):
         """Subscribe ``callback`` to an input topic, behind the lifecycle gate (at configure).
 
         Every input is made here: raw CDR bytes, the input QoS with its qos_overrides
-        parameters, and the callback run by :meth:`_gated`. ``scene``: the input changes the
-        scene rather than asking for an answer (static_poses): it is applied while inactive too.
+        parameters, and the callback run by :meth:`_gated`, which calls ``ignore`` (the same
+        arguments; by default: count one ignored input) for an input it turns away. ``scene``:
+        the input changes the scene rather than asking for an answer (static_poses): it is
+        applied while inactive too.
         """
         # A copy: rclpy writes the qos_overrides into the profile it is given, and the next
         # node of this process would start from them.
         return self.create_subscription(
-            message_type, topic, self._gated(callback, scene=scene), copy.copy(INPUT_QOS),
+            message_type, topic, self._gated(callback, ignore, scene), copy.copy(INPUT_QOS),
             raw=True, qos_overriding_options=QoSOverridingOptions.with_default_policies())
 
-    def _gated(self, callback, scene=False, counted=True):
+    def _gated(self, callback, ignore=None, scene=False):
         """Return ``callback`` run only while the node is active (configured, for a ``scene``).
 
         It runs whole under the gate's lock, which the transitions take: a deactivate waits
         for an input under way, which is answered whole, and an input after it is not answered
-        at all. An input the gate turns away is counted in ``ignored_inputs`` (``counted``),
-        never kept for later.
+        at all. An input the gate turns away goes to ``ignore`` (None: counted as one ignored
+        input in the diagnostics), never kept for later.
         """
         @functools.wraps(callback)  # rclpy reads the signature: message info or not
         def gated(*args):
@@ -343,14 +345,16 @@ class CollisionNode(LifecycleNode):
                 if self._active or scene and self._world is not None:
                     callback(*args)
                     return
-            if counted:
+            if ignore is None:
                 self._monitor.ignored()
+            else:
+                ignore(*args)
         gated.lifecycle_gated = True  # test_lifecycle checks every subscription for it
         return gated
 
     def _on_input(self, buffer, info):
         self._monitor.received()
-        self._count_sequence_gap(info.get('publication_sequence_number'))
+        self._monitor.dropped(self._sequence_gap(info))
         if self._config.tick_rate_hz > 0.0:
             if self._pending is not None:
                 self._monitor.dropped()
@@ -363,14 +367,21 @@ class CollisionNode(LifecycleNode):
         if buffer is not None:
             self._check(buffer)
 
-    def _count_sequence_gap(self, sequence):
+    def _ignore_input(self, buffer, info):
+        """Count an input that came while the node was not active, and those lost before it."""
+        self._monitor.ignored(1 + self._sequence_gap(info))
+
+    def _sequence_gap(self, info):
+        """Return how many inputs of the publisher were lost just before this one."""
+        sequence = info.get('publication_sequence_number')
         if sequence in (None, SEQUENCE_UNSUPPORTED):
-            return
+            return 0
         previous, self._last_sequence = self._last_sequence, sequence
         # A smaller number is another (or a restarted) publisher: start counting from it.
         if previous is not None and sequence > previous + 1 \
                 and self._subscription.get_publisher_count() == 1:
-            self._monitor.dropped(sequence - previous - 1)
+            return sequence - previous - 1
+        return 0
 
     def _check(self, buffer):
         """Collide one input and publish the answer; a refused input publishes nothing."""
