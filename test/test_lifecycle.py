@@ -28,6 +28,7 @@ from ros_helpers import (BAD_YAML, check_room_contacts, COLLIDERS, EXPECTED, HAL
                          REPO, room_poses, STATUS_NAME, values, write_params)
 from sensor_msgs.msg import PointCloud2
 
+from collision_node.benchmarks.params_files import write_scene_files
 from collision_node.pipeline.world import DYNAMIC, STATIC, World
 from collision_node.ros.cdr import serialize_pose_array
 from collision_node.ros.messages import cloud_to_contacts
@@ -153,6 +154,26 @@ def test_cleanup_releases_the_world_and_configure_reads_the_parameters_again(har
     four = room_poses(POSITIONS[:4])
     room.publish(four, sec=3)
     check_room_contacts(room.answer(3), EXPECTED[:3], four)
+
+
+def test_a_scene_file_is_read_again_by_each_configure(harness, tmp_path):
+    files = write_scene_files(tmp_path, [ABOVE], [[0.3, 0.3, 0.3]], np.full((5, 3), HALF),
+                              names=['pillar'])
+    room = harness(**files)
+    listed = list(COLLIDERS)
+    assert room.node.get_parameter('static_colliders').value == ['pillar'] + listed
+    poses = room_poses()
+    room.publish(poses, sec=1)
+    with_pillar = [(0, STATIC, 1), (1, DYNAMIC, 2), (1, STATIC, 2), (3, STATIC, 0),
+                   (4, STATIC, 3)]
+    assert ids(room.answer(1)) == with_pillar
+    assert room.lifecycle.change(DEACTIVATE) and room.lifecycle.change(CLEANUP)
+    assert room.node.get_parameter('static_colliders').value == listed
+    assert room.lifecycle.change(CONFIGURE) and room.lifecycle.change(ACTIVATE)
+    assert room.node.get_parameter('static_colliders').value == ['pillar'] + listed
+    room.wait_connected()
+    room.publish(poses, sec=2)
+    assert ids(room.answer(2)) == with_pillar
 
 
 @pytest.mark.parametrize('name, bad, good, reason', [

@@ -163,11 +163,13 @@ class CollisionNode(LifecycleNode):
             self._configure()
         except params.ParameterError as error:
             self._release()
+            self._unlist_file_colliders()
             self._failed_configure(error)
             return TransitionCallbackReturn.FAILURE
         except Exception as error:  # noqa: B902 (anything else: rclpy would swallow it)
             self.get_logger().error('configure failed: %s: %s' % (type(error).__name__, error))
             self._release()
+            self._unlist_file_colliders()
             self._failed_configure(error)
             return TransitionCallbackReturn.ERROR
         self._configure_error = None
@@ -257,6 +259,7 @@ class CollisionNode(LifecycleNode):
     def on_cleanup(self, state):
         """Release the World and the endpoints; the parameters stay, settable until configure."""
         self._release()
+        self._unlist_file_colliders()
         self._monitor.lifecycle(time.monotonic(), 'unconfigured')
         return super().on_cleanup(state)
 
@@ -271,6 +274,7 @@ class CollisionNode(LifecycleNode):
     def on_error(self, state):
         """Release what a transition that raised made, and go back to unconfigured."""
         self._release()
+        self._unlist_file_colliders()
         if self._configure_error is None:  # else configure's own reason stays
             self._monitor.lifecycle(time.monotonic(), 'unconfigured',
                                     'a transition from %s raised' % state.label)
@@ -304,15 +308,18 @@ class CollisionNode(LifecycleNode):
                 world, self._world, self._config = self._world, None, None
             if world is not None:
                 world.close()
-            if self._file_colliders:  # configure lists them again from the scene file
-                names = [name for name in self.get_parameter('static_colliders').value
-                         if name not in self._file_colliders]
-                self._file_colliders = []
-                self._reading = True
-                try:
-                    self.set_parameters([Parameter('static_colliders', value=names)])
-                finally:
-                    self._reading = False
+
+    def _unlist_file_colliders(self):
+        """Take the scene file's colliders out of static_colliders: configure lists them again."""
+        if self._file_colliders:
+            names = [name for name in self.get_parameter('static_colliders').value
+                     if name not in self._file_colliders]
+            self._file_colliders = []
+            self._reading = True
+            try:
+                self.set_parameters([Parameter('static_colliders', value=names)])
+            finally:
+                self._reading = False
 
     # Inputs.
 
