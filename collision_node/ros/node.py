@@ -8,7 +8,10 @@ A managed (lifecycle) node (doc/lifecycle.md). Made, it declares its parameters 
 /diagnostics, nothing else; configure reads the parameters, builds the World, loads the kernels
 and creates the endpoints; activate opens the gate every input callback goes through
 (:meth:`CollisionNode._create_input`); deactivate closes it; cleanup releases the World and the
-endpoints. ``autostart`` (the default) configures and activates in the constructor.
+endpoints. ``autostart`` (the default) configures and activates in the constructor. A new input
+topic is one line in :meth:`CollisionNode._configure`, ``self._create_input(type, topic,
+callback)``, and a new output one ``self._create_output(type, topic)``: both then follow the
+lifecycle.
 
 Ticks. ``tick_rate_hz`` 0: each input is checked in the subscription callback. ``> 0``: the
 callback only keeps the newest input and a timer checks it; a timer tick without a new input
@@ -19,7 +22,8 @@ newer one before the timer came; in both modes, the gaps in the publisher's sequ
 (DDS message info), i.e. messages overwritten in the depth-1 queue while a tick ran or lost on
 the way. Gaps are only counted while exactly one publisher is matched, because the message
 info does not say which publisher a sequence number belongs to, and only after a first message
-of that publisher came through (earlier ones may predate the subscription).
+of that publisher came through (earlier ones may predate the subscription). While the node is
+not active, an input and the gap before it count as ``ignored_inputs`` instead.
 
 Stage times in /diagnostics: ``parse`` is the CDR parse and the input checks (the message at
 the edge); ``broad`` is the World's: its boxes from the poses (rotation matrices, AABBs) and
@@ -121,8 +125,8 @@ class CollisionNode(LifecycleNode):
         self._autostarting = False
         self._configure_error = None  # why the last configure failed
         self._file_colliders = []  # names configure added to static_colliders (the scene file)
-        self._subscription = self._static_subscription = None
-        self._collisions_publisher = self._markers_publisher = None
+        # Made by configure, destroyed by cleanup: _create_input's and _create_output's.
+        self._inputs, self._outputs = [], []
         self._tick_timer = None
         self._scene_version = 0  # counts the accepted changes of the colliders (diagnostics)
         self.finalized = Future()  # done once the shutdown transition has run
@@ -213,11 +217,8 @@ class CollisionNode(LifecycleNode):
             self.destroy_timer(self._diagnostics_timer)
             self._diagnostics_timer = self.create_timer(config.diagnostic_period_s,
                                                         self._publish_diagnostics)
-        # Lifecycle publishers: they publish nothing while the node is not active.
-        self._collisions_publisher = self.create_lifecycle_publisher(
-            PointCloud2, 'collisions', OUTPUT_QOS)
-        self._markers_publisher = self.create_lifecycle_publisher(
-            MarkerArray, '~/markers', OUTPUT_QOS)
+        self._collisions_publisher = self._create_output(PointCloud2, 'collisions')
+        self._markers_publisher = self._create_output(MarkerArray, '~/markers')
         self._marker_writer = MarkerWriter(config.frame_id)
         self._next_markers_s = -math.inf  # monotonic s
         self._last_sequence = None
@@ -294,16 +295,13 @@ class CollisionNode(LifecycleNode):
         with self._gate:
             if self._active:
                 self._close_gate('inactive')
-            for subscription in (self._subscription, self._static_subscription):
-                if subscription is not None:
-                    self.destroy_subscription(subscription)
-            for publisher in (self._collisions_publisher, self._markers_publisher):
-                if publisher is not None:
-                    self.destroy_lifecycle_publisher(publisher)
+            while self._inputs:
+                self.destroy_subscription(self._inputs.pop())
+            while self._outputs:
+                self.destroy_lifecycle_publisher(self._outputs.pop())
             if self._tick_timer is not None:
                 self.destroy_timer(self._tick_timer)
-            self._subscription = self._static_subscription = None
-            self._collisions_publisher = self._markers_publisher = self._tick_timer = None
+                self._tick_timer = None
             with self._world_lock:
                 world, self._world, self._config = self._world, None, None
             if world is not None:
@@ -334,9 +332,20 @@ class CollisionNode(LifecycleNode):
         """
         # A copy: rclpy writes the qos_overrides into the profile it is given, and the next
         # node of this process would start from them.
-        return self.create_subscription(
+        subscription = self.create_subscription(
             message_type, topic, self._gated(callback, ignore, scene), copy.copy(INPUT_QOS),
             raw=True, qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self._inputs.append(subscription)  # cleanup destroys it
+        return subscription
+
+    def _create_output(self, message_type, topic):
+        """Return a lifecycle publisher for an output topic (at configure; cleanup destroys it).
+
+        It publishes nothing while the node is not active, whatever calls it.
+        """
+        publisher = self.create_lifecycle_publisher(message_type, topic, OUTPUT_QOS)
+        self._outputs.append(publisher)
+        return publisher
 
     def _gated(self, callback, ignore=None, scene=False):
         """Return ``callback`` run only while the node is active (configured, for a ``scene``).
@@ -351,11 +360,10 @@ class CollisionNode(LifecycleNode):
             with self._gate:
                 if self._active or scene and self._world is not None:
                     callback(*args)
-                    return
-            if ignore is None:
-                self._monitor.ignored()
-            else:
-                ignore(*args)
+                elif ignore is None:
+                    self._monitor.ignored()
+                else:
+                    ignore(*args)
         gated.lifecycle_gated = True  # test_lifecycle checks every subscription for it
         return gated
 
