@@ -44,6 +44,7 @@ the sources when that directory is writable and otherwise in its user-wide cache
 variable must be set before numba is imported, which is the launching environment's business,
 not the node's.
 """
+import contextlib
 import copy
 import functools
 import math
@@ -121,7 +122,9 @@ class CollisionNode(LifecycleNode):
         # takes it to open or close the gate, so it never lands in the middle of a tick.
         self._gate = threading.RLock()
         self._active = False
-        self._reading = False  # configure declares and sets parameters: not a user's change
+        # The thread of a transition that declares or sets parameters itself (configure, cleanup):
+        # its changes are not a user's, to check or apply. Another thread's still are.
+        self._own_changes = None
         self._autostarting = False
         self._configure_error = None  # why the last configure failed
         self._file_colliders = []  # names configure added to static_colliders (the scene file)
@@ -188,11 +191,8 @@ class CollisionNode(LifecycleNode):
 
     def _configure(self):
         listed = list(self.get_parameter_or('static_colliders').value or [])
-        self._reading = True
-        try:
+        with self._changing_parameters():
             self._config = config = params.read(self, self._declaration_errors)
-        finally:
-            self._reading = False
         self._file_colliders = [c.name for c in config.colliders if c.name not in listed]
         # The World owns the static scene; the node only turns parameters and static_poses
         # messages into its verbs, by each collider's id (params.Collider.static_id).
@@ -313,11 +313,17 @@ class CollisionNode(LifecycleNode):
             names = [name for name in self.get_parameter('static_colliders').value
                      if name not in self._file_colliders]
             self._file_colliders = []
-            self._reading = True
-            try:
+            with self._changing_parameters():
                 self.set_parameters([Parameter('static_colliders', value=names)])
-            finally:
-                self._reading = False
+
+    @contextlib.contextmanager
+    def _changing_parameters(self):
+        """Set parameters from this thread without the user's checks and effects."""
+        self._own_changes = threading.get_ident()
+        try:
+            yield
+        finally:
+            self._own_changes = None
 
     # Inputs.
 
@@ -513,7 +519,7 @@ class CollisionNode(LifecycleNode):
         applied by :meth:`_after_set_parameters`. While unconfigured, any parameter the node
         has may be set to a value of its type: configure checks them all together.
         """
-        if self._reading:  # configure's own declarations and settings
+        if self._own_changes == threading.get_ident():  # configure's own, or cleanup's
             return SetParametersResult(successful=True)
         try:
             if self._config is None:
@@ -527,7 +533,7 @@ class CollisionNode(LifecycleNode):
 
     def _after_set_parameters(self, changes):
         """Apply accepted run-time changes to the World: from the next tick on, all at once."""
-        if self._reading:
+        if self._own_changes == threading.get_ident():
             return
         for change in changes:  # a value of the right type replaces one that had the wrong one
             self._declaration_errors.pop(change.name, None)
