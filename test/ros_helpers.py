@@ -15,7 +15,6 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose, PoseArray
-from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 import numpy as np
 import pytest
@@ -196,13 +195,6 @@ class LifecycleClient:
         future = client.call_async(request)
         self.spin_until(future.done, 'the %s answer' % client.srv_name)
         return future.result()
-
-
-# Transition ids by the labels `ros2 lifecycle set` takes (shutdown: the one from active).
-TRANSITIONS = {'configure': Transition.TRANSITION_CONFIGURE,
-               'activate': Transition.TRANSITION_ACTIVATE,
-               'deactivate': Transition.TRANSITION_DEACTIVATE,
-               'cleanup': Transition.TRANSITION_CLEANUP}
 
 
 def change_request(transition):
