@@ -15,6 +15,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose, PoseArray
+from lifecycle_msgs.srv import ChangeState, GetState
 import numpy as np
 import pytest
 import rclpy
@@ -85,7 +86,8 @@ class Harness:
     """A CollisionNode and a test node that talks to it, spun by the test.
 
     ``input_depth`` deepens the node's input queue (its ``qos_overrides`` parameter) and the
-    tester's publisher alike, so that a burst of that many inputs reaches the node whole.
+    tester's publisher alike, so that a burst of that many inputs reaches the node whole. With
+    ``autostart=False`` among the overrides the node waits unconfigured: ``lifecycle`` moves it.
     """
 
     counter = itertools.count()
@@ -110,6 +112,12 @@ class Harness:
         self.peer.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
                                       RELIABLE)
         self.markers = None
+        self.lifecycle = LifecycleClient(self.peer, self.wait_for)
+        if overrides.get('autostart', True):
+            self.wait_connected()
+
+    def wait_connected(self):
+        """Wait until the node's input and output topics are matched with the tester's."""
         self.wait_for(lambda: self.poses.get_subscription_count() == 1
                       and self.peer.count_publishers('collisions') == 1)
 
@@ -155,6 +163,48 @@ class Harness:
         self.executor.shutdown()
         self.peer.destroy_node()
         self.node.destroy_node()
+
+
+class LifecycleClient:
+    """Calls a managed node's get_state and change_state services, as `ros2 lifecycle` does.
+
+    ``spin_until(condition, what)`` spins the executor that holds ``peer`` until the condition
+    holds (Harness.wait_for). The names are relative to the peer's namespace.
+    """
+
+    def __init__(self, peer, spin_until, node_name='collision_node'):
+        self.spin_until = spin_until
+        self.get_client = peer.create_client(GetState, node_name + '/get_state')
+        self.change_client = peer.create_client(ChangeState, node_name + '/change_state')
+
+    def state(self):
+        """Return the node's state label (unconfigured, inactive, active, finalized)."""
+        return self._call(self.get_client, GetState.Request()).current_state.label
+
+    def change(self, transition):
+        """Request a transition (a Transition id or label, e.g. 'configure'); return success."""
+        return self._call(self.change_client, change_request(transition)).success
+
+    def change_async(self, transition):
+        """Request a transition and return the future of its ChangeState response."""
+        self.spin_until(self.change_client.service_is_ready, 'the change_state service')
+        return self.change_client.call_async(change_request(transition))
+
+    def _call(self, client, request):
+        self.spin_until(client.service_is_ready, 'the %s service' % client.srv_name)
+        future = client.call_async(request)
+        self.spin_until(future.done, 'the %s answer' % client.srv_name)
+        return future.result()
+
+
+def change_request(transition):
+    """Return a ChangeState request for a Transition id, or for a label (any 'shutdown')."""
+    request = ChangeState.Request()
+    if isinstance(transition, str):
+        request.transition.label = transition
+    else:
+        request.transition.id = transition
+    return request
 
 
 def _pose(row):

@@ -207,3 +207,38 @@ def test_pure_modules_do_not_import_rclpy():
     done = subprocess.run([sys.executable, '-c', check], cwd=REPO, capture_output=True,
                           text=True, timeout=60)
     assert done.returncode == 0, done.stderr
+
+
+def test_a_node_that_is_not_active_is_never_ok():
+    monitor = Monitor(0.0)
+    monitor.lifecycle(0.0, 'unconfigured')
+    level, message, values = monitor.report(0.5, input_timeout_s=0.1)
+    assert (level, message) == (WARN, 'unconfigured: not checking collisions')
+    assert (dict(values)['lifecycle_state'], dict(values)['ignored_inputs']) == (
+        'unconfigured', '0')
+    monitor.lifecycle(1.0, 'unconfigured', "configure failed: parameter 'x': bad")
+    level, message, _ = monitor.report(1.5, input_timeout_s=0.1)
+    assert level == ERROR
+    assert message == "unconfigured: not checking collisions; configure failed: parameter 'x': bad"
+    monitor.lifecycle(2.0, 'inactive')
+    monitor.ignored()
+    monitor.ignored(2)
+    level, message, values = monitor.report(2.5, input_timeout_s=0.1)
+    assert (level, message) == (WARN, 'inactive: not checking collisions, 3 inputs ignored')
+    assert dict(values)['lifecycle_state'] == 'inactive' and dict(values)['ignored_inputs'] == '3'
+    level, message, values = monitor.report(3.0, input_timeout_s=0.1)  # none this period
+    assert message == 'inactive: not checking collisions' and dict(values)['ignored_inputs'] == '3'
+    # Active at 10 s, long after any valid input: the input timeout counts from the activate.
+    monitor.lifecycle(10.0, 'active')
+    level, _, values = monitor.report(10.05, input_timeout_s=0.1)
+    assert level == OK and dict(values)['lifecycle_state'] == 'active'
+    level, message, _ = monitor.report(10.2, input_timeout_s=0.1)
+    assert (level, message) == (ERROR, 'no valid input for 0.2 s')
+
+
+def test_the_lifecycle_keys_leave_the_first_and_last_keys_in_place():
+    """collision_monitor prints the keys in order; the README shows its first and last lines."""
+    keys = [key for key, _ in Monitor(0.0).report(1.0, input_timeout_s=0.0)[2]]
+    assert keys[:3] == ['broad_phase', 'dynamic_bodies', 'static_bodies']
+    assert keys[-2:] == ['rejected_inputs', 'last_rejection']
+    assert {'lifecycle_state', 'ignored_inputs'} <= set(keys)

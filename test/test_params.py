@@ -201,6 +201,37 @@ def test_run_time_changes():
         assert raised.value.name in (name, 'a.pose')
 
 
+def test_start_only_parameters_are_read_only_once_configured_and_autostart_always():
+    spec = params.PARAMETERS['autostart']
+    assert (spec.value_type, spec.default, spec.run_time) == (params.BOOL, True, False)
+    assert params.READ_ONLY == {'autostart'}
+    parsed = params.parse(GOOD)
+    for name, value in (('tick_rate_hz', 5.0), ('frame_id', 'map'), ('autostart', False)):
+        with pytest.raises(ParameterError, match='read-only while configured'):
+            params.run_time_change(parsed, name, value)
+
+
+def test_unconfigured_changes_are_checked_for_name_and_type_only():
+    """Configure checks the values together; a change while unconfigured only needs its type."""
+    for name, value in (('frame_id', 'map'), ('tick_rate_hz', -5.0), ('door.pose', [0.0] * 7),
+                        ('static_colliders', ['a', 'a']), ('autostart', False),
+                        ('qos_overrides./dynamic_poses.subscription.depth', 3)):
+        params.check_unconfigured(name, value)
+    for name, value, words in (('no_such_parameter', 1.0, 'undeclared'),
+                               ('tick_rate_hz', 'fast', 'must be of type double'),
+                               ('door.enabled', 1, 'must be of type bool'),
+                               ('d3.pose', [0.0] * 7, 'names a dynamic body'),
+                               ('door.colour', 'red', 'undeclared')):
+        with pytest.raises(ParameterError, match=words):
+            params.check_unconfigured(name, value)
+
+
+def test_the_diagnostic_period_before_configure_falls_back_to_its_default():
+    assert params.diagnostic_period_s(0.25) == 0.25
+    for bad in (0.0, -1.0, math.inf, None, 'fast'):
+        assert params.diagnostic_period_s(bad) == 1.0
+
+
 def test_colliders_are_moved_added_and_removed_with_ids_for_their_lifetime():
     parsed = params.parse(dict(GOOD, ignored_pairs=['d0 shelf']))
     assert [(c.name, c.static_id) for c in parsed.colliders] == [('table', 0), ('shelf', 1)]

@@ -24,6 +24,7 @@ SNIPPETS = {
     'doc/python-api.md': ['Python API'],
     'doc/changing-scene.md': ['Moving colliders with static_poses',
                               'Adding, removing, resizing, enabling with parameters'],
+    'doc/lifecycle.md': ['From code'],
 }
 
 

@@ -4,7 +4,8 @@ The node and the monitor start from the README's own command lines (``.venv/bin/
 Python's venv), the script is the README's snippet saved as ``my_poses.py``, and the monitor
 must print the README's lines. Masked are only what a clock decides: the stamp, and the level
 and message of the status (``1 ticks at 1.0 Hz`` measures the period the tick fell in). The two
-scripts of doc/changing-scene.md run against the node the same way.
+scripts of doc/changing-scene.md and the manager script of doc/lifecycle.md run against the
+node the same way.
 """
 import os
 import random
@@ -137,3 +138,29 @@ def test_the_scene_changing_scripts_change_the_nodes_scene(tmp_path):
         executor.shutdown()
         observer.destroy_node()
         context.try_shutdown()
+
+
+LIFECYCLE = DOC / 'lifecycle.md'
+
+
+def test_the_lifecycle_script_configures_and_activates_a_waiting_node(tmp_path):
+    """The page's script against the node started by the page's command, as it prints."""
+    node_line = code_blocks('bash', LIFECYCLE)['From the command line'][0].splitlines()[0]
+    words = shlex.split(node_line)
+    assert words[:4] == ['ros2', 'run', 'collision_node', 'collision_node']  # no ros2 here
+    script, = python_snippets(LIFECYCLE)['From code']
+    expected, = code_blocks('', LIFECYCLE)['From code']
+    (tmp_path / 'manager.py').write_text(script)
+    env = node_environment(DOMAIN_ID)
+    with open(tmp_path / 'node.log', 'w') as node_log:
+        node = subprocess.Popen(command('.venv/bin/collision_node') + words[4:], cwd=REPO,
+                                env=env, stdout=node_log, stderr=subprocess.STDOUT)
+    try:
+        done = subprocess.run([sys.executable, 'manager.py'], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, timeout=START_TIMEOUT_S)
+    finally:
+        stopped = stop_process(node, STOP_TIMEOUT_S)
+    log = (tmp_path / 'node.log').read_text()
+    assert done.returncode == 0, done.stderr + log
+    assert done.stdout == expected
+    assert stopped == 0 and 'Traceback' not in log, log

@@ -4,6 +4,10 @@ Plain Python and numpy (no rclpy import): the node feeds a :class:`Monitor` ever
 it once per period for a level, a message and key/value strings, which it copies into a
 diagnostic_msgs/DiagnosticStatus. Recording a tick is O(1) (one row written into a fixed ring
 buffer); the medians and percentiles are computed once per period.
+
+The node's lifecycle state comes into the report too (doc/lifecycle.md): a node that is not
+active checks nothing, and its level says so, so that "not checking" never reads as "no
+collisions".
 """
 import numpy as np
 
@@ -22,6 +26,7 @@ WORLD_KEYS = ('broad_phase', 'dynamic_bodies', 'static_bodies', 'still_bodies', 
               'continuous', 'swept_pairs', 'unresolved_pairs')
 # stats['continuous'] of a tick checked at its poses only although continuous is on.
 DISCRETE_FALLBACK = 'discrete'
+ACTIVE = 'active'  # the lifecycle state in which the node checks its inputs
 
 
 class Monitor:
@@ -52,6 +57,28 @@ class Monitor:
         self._phase_stats = {}  # the broad phase's own counters (octree leaves, sorts, ...)
         self._scene_version = 0
         self._static_ids = ''  # name:id of every static collider, in static_colliders order
+        self._ignored = 0        # this period: inputs that came while the node was not active
+        self._ignored_total = 0  # since start
+        # The node's lifecycle state (a lifecycle_msgs/State label); a Monitor told nothing else
+        # reports as the node checking its inputs.
+        self._state = ACTIVE
+        self._state_problem = ''      # why the node is not active, when that is a fault
+
+    def lifecycle(self, now_s, state, problem=''):
+        """Record the node's lifecycle state at ``now_s``; ``problem``: why, when it is a fault.
+
+        Becoming active starts the wait for a valid input afresh: a node that was paused has
+        not been silent.
+        """
+        if state == ACTIVE and self._state != ACTIVE:
+            self._last_valid_s = now_s
+            self._rejected_since_valid = 0
+        self._state, self._state_problem = state, problem
+
+    def ignored(self, count=1):
+        """Count inputs that came while the node was not active: never checked, never answered."""
+        self._ignored += count
+        self._ignored_total += count
 
     def scene(self, version, colliders=None):
         """Record the static scene's version and, when given, its colliders' names and ids.
@@ -103,7 +130,8 @@ class Monitor:
 
         ``tick_period_s`` is the timer period when a timer ticks (0: ticks follow the inputs,
         whose period is measured from the inputs that arrived or were dropped on the way).
-        ``input_timeout_s`` 0 disables the ERROR level.
+        ``input_timeout_s`` 0 disables the ERROR level. A node that is not active reports WARN
+        (ERROR with a problem, e.g. a failed configure), whatever its inputs did.
         """
         elapsed = max(now_s - self._period_start, 1e-9)
         inputs = self._received + self._dropped
@@ -127,13 +155,22 @@ class Monitor:
         values += [('continuous_discrete_ticks', str(self._discrete_ticks)),
                    ('ticks', str(self._ticks)), ('rate_hz', '%.3f' % (self._ticks / elapsed)),
                    ('input_period_ms', _ms(1e3 * input_period)),
+                   ('lifecycle_state', self._state),
+                   ('ignored_inputs', str(self._ignored_total)),
                    ('dropped_inputs', str(self._dropped_total)),
                    ('rejected_inputs', str(self._rejected_total)),
                    ('last_rejection', self._last_rejection)]
 
         silent_s = now_s - self._last_valid_s
         slowest_ms = self._period_max[TOTAL]
-        if input_timeout_s > 0.0 and silent_s >= input_timeout_s:
+        if self._state != ACTIVE:
+            level, message = ERROR if self._state_problem else WARN, \
+                '%s: not checking collisions' % self._state
+            if self._ignored:
+                message += ', %d inputs ignored' % self._ignored
+            if self._state_problem:
+                message += '; ' + self._state_problem
+        elif input_timeout_s > 0.0 and silent_s >= input_timeout_s:
             level, message = ERROR, 'no valid input for %.3g s' % silent_s
             if self._rejected_since_valid:  # inputs came, all bad: say why they were refused
                 message += '; ' + self._rejections(self._rejected_since_valid)
@@ -146,7 +183,7 @@ class Monitor:
             level, message = OK, '%d ticks at %.1f Hz' % (self._ticks, self._ticks / elapsed)
 
         self._period_start = now_s
-        self._ticks = self._received = self._dropped = self._rejected = 0
+        self._ticks = self._received = self._dropped = self._rejected = self._ignored = 0
         self._period_max[:] = 0.0
         return level, message, values
 

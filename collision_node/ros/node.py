@@ -4,6 +4,15 @@ A thin layer over :class:`~collision_node.pipeline.world.World`: it reads the Po
 CDR bytes (numpy, no per-pose Python), checks the input against the parameters, steps the World and
 writes the `collisions` cloud as raw CDR bytes too. Everything geometric lives in the World.
 
+A managed (lifecycle) node (doc/lifecycle.md). Made, it declares its parameters and publishes
+/diagnostics, nothing else; configure reads the parameters, builds the World, loads the kernels
+and creates the endpoints; activate opens the gate every input callback goes through
+(:meth:`CollisionNode._create_input`); deactivate closes it; cleanup releases the World and the
+endpoints. ``autostart`` (the default) configures and activates in the constructor. A new input
+topic is one line in :meth:`CollisionNode._configure`, ``self._create_input(type, topic,
+callback)``, and a new output one ``self._create_output(type, topic)``: both then follow the
+lifecycle.
+
 Ticks. ``tick_rate_hz`` 0: each input is checked in the subscription callback. ``> 0``: the
 callback only keeps the newest input and a timer checks it; a timer tick without a new input
 does nothing (re-publishing the last answer would repeat an old stamp as if it were news).
@@ -13,7 +22,8 @@ newer one before the timer came; in both modes, the gaps in the publisher's sequ
 (DDS message info), i.e. messages overwritten in the depth-1 queue while a tick ran or lost on
 the way. Gaps are only counted while exactly one publisher is matched, because the message
 info does not say which publisher a sequence number belongs to, and only after a first message
-of that publisher came through (earlier ones may predate the subscription).
+of that publisher came through (earlier ones may predate the subscription). While the node is
+not active, an input and the gap before it count as ``ignored_inputs`` instead.
 
 Stage times in /diagnostics: ``parse`` is the CDR parse and the input checks (the message at
 the edge); ``broad`` is the World's: its boxes from the poses (rotation matrices, AABBs) and
@@ -34,7 +44,9 @@ the sources when that directory is writable and otherwise in its user-wide cache
 variable must be set before numba is imported, which is the launching environment's business,
 not the node's.
 """
+import contextlib
 import copy
+import functools
 import math
 import threading
 import time
@@ -45,9 +57,11 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.executors import ExternalShutdownException
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.task import Future
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
@@ -88,7 +102,7 @@ class InputError(ValueError):
     """An input message the node refuses; the text is the reason in the diagnostics."""
 
 
-class CollisionNode(Node):
+class CollisionNode(LifecycleNode):
     """Checks the dynamic boxes of each PoseArray against each other and the static colliders."""
 
     def __init__(self, **kwargs):
@@ -96,20 +110,100 @@ class CollisionNode(Node):
         # could not declare before. _on_set_parameters refuses every name it does not know.
         kwargs.setdefault('allow_undeclared_parameters', True)
         super().__init__('collision_node', **kwargs)
-        self._config = params.declare(self)
-        config = self._config
-        # The World owns the static scene; the node only turns parameters and static_poses
-        # messages into its verbs, by each collider's id (params.Collider.static_id).
-        self._world = World(config.broad_phase, config.sphere_prefilter,
-                            config.octree_max_depth, config.octree_leaf_cooldown_ticks,
-                            config.threads, config.margin, config.continuous,
-                            config.continuous_tolerance)
-        _add_colliders(self._world, config.colliders)
-        self._world.set_filters(*config.filters())
-        self._scene_version = 0  # counts the accepted changes of the colliders (diagnostics)
+        # Declared now, so that a manager can set them before configure; a wrong-typed value is
+        # kept here and fails configure (params.declare).
+        self._declaration_errors = params.declare(self)
+        self._config = None  # params.Parameters while configured
+        self._world = None
         # Parameter changes may come from another thread (Node.set_parameters); ticks run on
         # the executor's. The lock keeps a World change from landing in the middle of a step.
         self._world_lock = threading.Lock()
+        # The lifecycle gate (_gated): an input callback runs whole under it, and a transition
+        # takes it to open or close the gate, so it never lands in the middle of a tick.
+        self._gate = threading.RLock()
+        self._active = False
+        # The thread of a transition that declares or sets parameters itself (configure, cleanup):
+        # its changes are not a user's, to check or apply. Another thread's still are.
+        self._own_changes = None
+        self._autostarting = False
+        self._configure_error = None  # why the last configure failed
+        self._file_colliders = []  # names configure added to static_colliders (the scene file)
+        # Made by configure, destroyed by cleanup: _create_input's and _create_output's.
+        self._inputs, self._outputs = [], []
+        self._tick_timer = None
+        self._scene_version = 0  # counts the accepted changes of the colliders (diagnostics)
+        self.finalized = Future()  # done once the shutdown transition has run
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
+
+        # Diagnostics in every state: they are how a watcher learns that the node is not
+        # checking. Their period is checked here already, as configure would.
+        self._monitor = diagnostics.Monitor(time.monotonic())
+        self._monitor.lifecycle(time.monotonic(), 'unconfigured')
+        self._diagnostics_publisher = self.create_publisher(
+            DiagnosticArray, '/diagnostics', OUTPUT_QOS)
+        self._diagnostics_timer = self.create_timer(
+            params.diagnostic_period_s(self.get_parameter('diagnostic_updater.period').value),
+            self._publish_diagnostics)
+        if self.get_parameter('autostart').value:
+            self._autostart()
+
+    def _autostart(self):
+        """Configure and activate, as a manager would; raise configure's error if it fails."""
+        self._autostarting = True
+        try:
+            configured = self.trigger_configure()
+        finally:
+            self._autostarting = False
+        if configured != TransitionCallbackReturn.SUCCESS:
+            error = self._configure_error
+            self.destroy_node()
+            raise error
+        self.trigger_activate()
+
+    # Lifecycle transitions (doc/lifecycle.md). rclpy calls them from the change_state service,
+    # or from trigger_*; the lifecycle publishers follow through super().
+
+    def on_configure(self, state):
+        """Read and check the parameters, build the World, load the kernels, make the endpoints."""
+        try:
+            self._configure()
+        except params.ParameterError as error:
+            self._release()
+            self._unlist_file_colliders()
+            self._failed_configure(error)
+            return TransitionCallbackReturn.FAILURE
+        except Exception as error:  # noqa: B902 (anything else: rclpy would swallow it)
+            self.get_logger().error('configure failed: %s: %s' % (type(error).__name__, error))
+            self._release()
+            self._unlist_file_colliders()
+            self._failed_configure(error)
+            return TransitionCallbackReturn.ERROR
+        self._configure_error = None
+        self._monitor.lifecycle(time.monotonic(), 'inactive')
+        return super().on_configure(state)
+
+    def _failed_configure(self, error):
+        self._configure_error = error
+        self._monitor.lifecycle(time.monotonic(), 'unconfigured', 'configure failed: %s' % error)
+        if not self._autostarting:  # under autostart, main() says it once, as FATAL
+            self.get_logger().error('configure failed: %s' % error)
+
+    def _configure(self):
+        listed = list(self.get_parameter_or('static_colliders').value or [])
+        with self._changing_parameters():
+            self._config = config = params.read(self, self._declaration_errors)
+        self._file_colliders = [c.name for c in config.colliders if c.name not in listed]
+        # The World owns the static scene; the node only turns parameters and static_poses
+        # messages into its verbs, by each collider's id (params.Collider.static_id).
+        world = World(config.broad_phase, config.sphere_prefilter, config.octree_max_depth,
+                      config.octree_leaf_cooldown_ticks, config.threads, config.margin,
+                      config.continuous, config.continuous_tolerance)
+        with self._world_lock:
+            self._world = world
+        _add_colliders(world, config.colliders)
+        world.set_filters(*config.filters())
+        self._scene_version = 0
 
         start = time.perf_counter()
         with compile_progress(self.get_logger().info):
@@ -118,31 +212,26 @@ class CollisionNode(Node):
         self.get_logger().info('JIT warm-up of %d broad phases took %.2f s'
                                % (len(NAMES), time.perf_counter() - start))
 
-        self._monitor = diagnostics.Monitor(time.monotonic())
         self._monitor.scene(self._scene_version, config.colliders)
-        self._collisions_publisher = self.create_publisher(PointCloud2, 'collisions', OUTPUT_QOS)
-        self._markers_publisher = self.create_publisher(MarkerArray, '~/markers', OUTPUT_QOS)
-        self._diagnostics_publisher = self.create_publisher(
-            DiagnosticArray, '/diagnostics', OUTPUT_QOS)
+        if self._diagnostics_timer.timer_period_ns != round(1e9 * config.diagnostic_period_s):
+            self.destroy_timer(self._diagnostics_timer)
+            self._diagnostics_timer = self.create_timer(config.diagnostic_period_s,
+                                                        self._publish_diagnostics)
+        self._collisions_publisher = self._create_output(PointCloud2, 'collisions')
+        self._markers_publisher = self._create_output(MarkerArray, '~/markers')
         self._marker_writer = MarkerWriter(config.frame_id)
         self._next_markers_s = -math.inf  # monotonic s
         self._last_sequence = None
         self._pending = None  # newest unchecked input, in timer mode
-
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.add_post_set_parameters_callback(self._after_set_parameters)
-        self.create_timer(config.diagnostic_period_s, self._publish_diagnostics)
         if config.tick_rate_hz > 0.0:
-            self.create_timer(1.0 / config.tick_rate_hz, self._on_tick_timer)
+            self._tick_timer = self.create_timer(1.0 / config.tick_rate_hz,
+                                                 self._gated(self._on_tick_timer, lambda: None))
+            self._tick_timer.cancel()  # activate starts it
         # Last, after the warm-up: no input is taken before the node can answer it in time.
-        # A copy: rclpy writes the qos_overrides into the profile it is given, and the next
-        # node of this process would start from them.
-        self._subscription = self.create_subscription(
-            PoseArray, 'dynamic_poses', self._on_input, copy.copy(INPUT_QOS), raw=True,
-            qos_overriding_options=QoSOverridingOptions.with_default_policies())
-        self._static_subscription = self.create_subscription(
-            PoseArray, 'static_poses', self._on_static_poses, copy.copy(INPUT_QOS), raw=True,
-            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self._subscription = self._create_input(PoseArray, 'dynamic_poses', self._on_input,
+                                                self._ignore_input)
+        self._static_subscription = self._create_input(PoseArray, 'static_poses',
+                                                       self._on_static_poses, scene=True)
         self.get_logger().info(
             '%d static colliders (%d enabled), broad phase %s, %s, %d thread%s' % (
                 len(config.colliders), self._world.static_count, config.broad_phase,
@@ -150,9 +239,143 @@ class CollisionNode(Node):
                 else 'tick at %g Hz' % config.tick_rate_hz,
                 config.threads, '' if config.threads == 1 else 's'))
 
+    def on_activate(self, state):
+        """Answer inputs from now on: the publishers first, then the gate."""
+        result = super().on_activate(state)
+        with self._gate:
+            self._active = True
+            if self._tick_timer is not None:
+                self._tick_timer.reset()
+            self._monitor.lifecycle(time.monotonic(), 'active')
+        self.get_logger().info('active: checking inputs')
+        return result
+
+    def on_deactivate(self, state):
+        """Answer nothing from now on; an input waiting for the timer is ignored, not kept."""
+        with self._gate:  # waits for a tick under way: it is answered whole
+            self._close_gate('inactive')
+        self.get_logger().info('inactive: not checking inputs')
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state):
+        """Release the World and the endpoints; the parameters stay, settable until configure."""
+        self._release()
+        self._unlist_file_colliders()
+        self._monitor.lifecycle(time.monotonic(), 'unconfigured')
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state):
+        """Release everything from any state; main() then ends the process."""
+        self._release()
+        self._monitor.lifecycle(time.monotonic(), 'finalized')
+        result = super().on_shutdown(state)
+        self.finalized.set_result(True)
+        return result
+
+    def on_error(self, state):
+        """Release what a transition that raised made, and go back to unconfigured."""
+        self._release()
+        self._unlist_file_colliders()
+        if self._configure_error is None:  # else configure's own reason stays
+            self._monitor.lifecycle(time.monotonic(), 'unconfigured',
+                                    'a transition from %s raised' % state.label)
+        return TransitionCallbackReturn.SUCCESS
+
+    def _close_gate(self, state):
+        self._active = False
+        if self._tick_timer is not None:
+            self._tick_timer.cancel()
+        if getattr(self, '_pending', None) is not None:
+            self._pending = None
+            self._monitor.ignored()
+        self._monitor.lifecycle(time.monotonic(), state)
+
+    def _release(self):
+        """Destroy the endpoints and the World configure made (any part of them), if any."""
+        with self._gate:
+            if self._active:
+                self._close_gate('inactive')
+            while self._inputs:
+                self.destroy_subscription(self._inputs.pop())
+            while self._outputs:
+                self.destroy_lifecycle_publisher(self._outputs.pop())
+            if self._tick_timer is not None:
+                self.destroy_timer(self._tick_timer)
+                self._tick_timer = None
+            with self._world_lock:
+                world, self._world, self._config = self._world, None, None
+            if world is not None:
+                world.close()
+
+    def _unlist_file_colliders(self):
+        """Take the scene file's colliders out of static_colliders: configure lists them again."""
+        if self._file_colliders:
+            names = [name for name in self.get_parameter('static_colliders').value
+                     if name not in self._file_colliders]
+            self._file_colliders = []
+            with self._changing_parameters():
+                self.set_parameters([Parameter('static_colliders', value=names)])
+
+    @contextlib.contextmanager
+    def _changing_parameters(self):
+        """Set parameters from this thread without the user's checks and effects."""
+        self._own_changes = threading.get_ident()
+        try:
+            yield
+        finally:
+            self._own_changes = None
+
+    # Inputs.
+
+    def _create_input(self, message_type, topic, callback, ignore=None, scene=False):
+        """Subscribe ``callback`` to an input topic, behind the lifecycle gate (at configure).
+
+        Every input is made here: raw CDR bytes, the input QoS with its qos_overrides
+        parameters, and the callback run by :meth:`_gated`, which calls ``ignore`` (the same
+        arguments; by default: count one ignored input) for an input it turns away. ``scene``:
+        the input changes the scene rather than asking for an answer (static_poses): it is
+        applied while inactive too.
+        """
+        # A copy: rclpy writes the qos_overrides into the profile it is given, and the next
+        # node of this process would start from them.
+        subscription = self.create_subscription(
+            message_type, topic, self._gated(callback, ignore, scene), copy.copy(INPUT_QOS),
+            raw=True, qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self._inputs.append(subscription)  # cleanup destroys it
+        return subscription
+
+    def _create_output(self, message_type, topic):
+        """Return a lifecycle publisher for an output topic (at configure; cleanup destroys it).
+
+        It publishes nothing while the node is not active, whatever calls it.
+        """
+        publisher = self.create_lifecycle_publisher(message_type, topic, OUTPUT_QOS)
+        self._outputs.append(publisher)
+        return publisher
+
+    def _gated(self, callback, ignore=None, scene=False):
+        """Return ``callback`` run only while the node is active (configured, for a ``scene``).
+
+        It runs whole under the gate's lock, which the transitions take: a deactivate waits
+        for an input under way, which is answered whole, and an input after it is not answered
+        at all. An input the gate turns away goes to ``ignore`` (None: counted as one ignored
+        input in the diagnostics), never kept for later.
+        """
+        @functools.wraps(callback)  # rclpy reads the signature: message info or not
+        def gated(*args):
+            with self._gate:
+                if self._active or scene and self._world is not None:
+                    callback(*args)
+                elif ignore is None:
+                    self._monitor.ignored()
+                else:
+                    ignore(*args)
+        gated.lifecycle_gated = True  # test_lifecycle checks every subscription for it
+        return gated
+
     def _on_input(self, buffer, info):
         self._monitor.received()
-        self._count_sequence_gap(info.get('publication_sequence_number'))
+        self._monitor.dropped(self._sequence_gap(info))
         if self._config.tick_rate_hz > 0.0:
             if self._pending is not None:
                 self._monitor.dropped()
@@ -165,14 +388,21 @@ class CollisionNode(Node):
         if buffer is not None:
             self._check(buffer)
 
-    def _count_sequence_gap(self, sequence):
+    def _ignore_input(self, buffer, info):
+        """Count an input that came while the node was not active, and those lost before it."""
+        self._monitor.ignored(1 + self._sequence_gap(info))
+
+    def _sequence_gap(self, info):
+        """Return how many inputs of the publisher were lost just before this one."""
+        sequence = info.get('publication_sequence_number')
         if sequence in (None, SEQUENCE_UNSUPPORTED):
-            return
+            return 0
         previous, self._last_sequence = self._last_sequence, sequence
         # A smaller number is another (or a restarted) publisher: start counting from it.
         if previous is not None and sequence > previous + 1 \
                 and self._subscription.get_publisher_count() == 1:
-            self._monitor.dropped(sequence - previous - 1)
+            return sequence - previous - 1
+        return 0
 
     def _check(self, buffer):
         """Collide one input and publish the answer; a refused input publishes nothing."""
@@ -234,7 +464,7 @@ class CollisionNode(Node):
                                  1e3 * (done - start)), stats)
 
     def destroy_node(self):
-        self._world.close()
+        self._release()
         super().destroy_node()
 
     @staticmethod
@@ -286,16 +516,29 @@ class CollisionNode(Node):
         """Accept run-time changes that are valid together, or refuse them all with why.
 
         Validation only (rclpy may still refuse the call after this): the changes are
-        applied by :meth:`_after_set_parameters`.
+        applied by :meth:`_after_set_parameters`. While unconfigured, any parameter the node
+        has may be set to a value of its type: configure checks them all together.
         """
+        if self._own_changes == threading.get_ident():  # configure's own, or cleanup's
+            return SetParametersResult(successful=True)
         try:
-            self._changed_parameters(changes)
+            if self._config is None:
+                for change in changes:
+                    params.check_unconfigured(change.name, change.value)
+            else:
+                self._changed_parameters(changes)
         except params.ParameterError as error:
             return SetParametersResult(successful=False, reason=str(error))
         return SetParametersResult(successful=True)
 
     def _after_set_parameters(self, changes):
         """Apply accepted run-time changes to the World: from the next tick on, all at once."""
+        if self._own_changes == threading.get_ident():
+            return
+        for change in changes:  # a value of the right type replaces one that had the wrong one
+            self._declaration_errors.pop(change.name, None)
+        if self._config is None:
+            return  # configure reads them
         with self._world_lock:
             old, changed = self._config, self._changed_parameters(changes)
             world = self._world
@@ -333,9 +576,9 @@ class CollisionNode(Node):
 
     def _publish_diagnostics(self):
         config = self._config
+        timeout_s, rate_hz = (config.input_timeout_s, config.tick_rate_hz) if config else (0, 0)
         level, message, values = self._monitor.report(
-            time.monotonic(), config.input_timeout_s,
-            1.0 / config.tick_rate_hz if config.tick_rate_hz else 0.0)
+            time.monotonic(), timeout_s, 1.0 / rate_hz if rate_hz else 0.0)
         status = DiagnosticStatus(
             level=bytes([level]), name=self.get_name() + diagnostics.STATUS_SUFFIX,
             message=message, hardware_id='none',
@@ -398,7 +641,11 @@ def compile_kernels():
 
 
 def main(args=None):
-    """Run the node until shutdown; exit with status 2 on a bad parameter."""
+    """Run the node until shutdown; exit with status 2 on a bad parameter under autostart.
+
+    Shutdown is Ctrl-C (SIGINT) or the lifecycle shutdown transition: a finalized node has
+    nothing left to do, so the process ends, with status 0, once the transition is answered.
+    """
     keep_heap_memory()  # before the first large message: see collision_node.ros.memory
     try:
         rclpy.init(args=args)
@@ -408,7 +655,7 @@ def main(args=None):
     node = None
     try:
         node = CollisionNode()
-        rclpy.spin(node)
+        rclpy.spin_until_future_complete(node, node.finalized)
     except params.ParameterError as error:
         rclpy.logging.get_logger('collision_node').fatal(str(error))
         raise SystemExit(2) from None

@@ -5,9 +5,10 @@ Validation is plain Python on plain values, so tests call it without ROS:
     params = parse({'frame_id': 'world', 'static_colliders': ['table'],
                     'table.pose': [0, 0, 0.4, 0, 0, 0, 1], 'table.half_extents': [0.6, 0.4, 0.02]})
 
-:func:`declare` is the rclpy side: it declares every parameter on a node with its type and reads
-them back through :func:`parse`. Every problem raises :class:`ParameterError`, whose text names
-the parameter and says what is wrong with it.
+:func:`declare` and :func:`read` are the rclpy side: the node declares every parameter with its
+type when it is made, and reads them back through :func:`parse` at each lifecycle configure
+(doc/lifecycle.md). Every problem raises :class:`ParameterError`, whose text names the parameter
+and says what is wrong with it.
 """
 import math
 import re
@@ -34,7 +35,7 @@ class Spec(NamedTuple):
     value_type: str
     default: object
     description: str
-    run_time: bool = False  # may change while the node runs; all others are read-only
+    run_time: bool = False  # may change while the node runs; others only while unconfigured
 
 
 PARAMETERS = {
@@ -79,7 +80,12 @@ PARAMETERS = {
                                 "the contacts: 1 keeps every tick on the executor's thread; 2+ "
                                 "pay from ~10,000 bodies"),
     'diagnostic_updater.period': Spec(DOUBLE, 1.0, 's between /diagnostics messages'),
+    'autostart': Spec(BOOL, True, 'configure and activate at start; false: wait unconfigured for '
+                                  'a lifecycle manager'),
 }
+# Read once, by the constructor: rclpy refuses every change (ParameterDescriptor.read_only).
+READ_ONLY = frozenset({'autostart'})
+START_ONLY_CONSTRAINT = 'start-only: set it while the node is unconfigured'
 COLLIDER_PARAMETERS = {  # <name>.<key>; pose and half_extents have no default: they must be given
     'pose': Spec(DOUBLE_ARRAY, None, 'x y z qx qy qz qw, in frame_id', True),
     'half_extents': Spec(DOUBLE_ARRAY, None, 'm, 3 values', True),
@@ -276,7 +282,8 @@ def run_time_change(parameters, name, value, block_value=None):
         return _with_colliders(parameters, _checked(name, STRING_ARRAY, value),
                                block_value or (lambda _: None))
     if not spec.run_time:
-        raise ParameterError(name, 'fixed at start; restart the node to change it')
+        raise ParameterError(name, 'fixed at start, read-only while configured: set it while the '
+                                   'node is unconfigured (lifecycle cleanup), or restart it')
     value = _checked(name, spec.value_type, value)
     if name in WORLD_SETTINGS:
         check_world_setting(name, value)
@@ -355,48 +362,51 @@ def ignored_pair_rows(entries, collider_names, collider_ids=None):
 
 
 def declare(node):
-    """Declare every parameter on ``node`` with its type and return them parsed.
+    """Declare every parameter on ``node`` with its type; return the declaration errors.
 
-    Start-only parameters are declared read-only, so rclpy refuses to change them later.
-    Raises ParameterError.
+    Called once, when the node is made: the parameters exist from then on, so that a lifecycle
+    manager may set them before configure. A value of the wrong type (from a params file or an
+    override) cannot be declared; its parameter is declared at its default instead and the
+    error is returned, {name: ParameterError} in declaration order, for :func:`read` to report
+    at configure, unless a value of the right type is set before. Only ``autostart`` is
+    read-only for rclpy; the start-only parameters are refused by the node while it is
+    configured (:func:`run_time_change`).
     """
-    from rcl_interfaces.msg import ParameterDescriptor
-    from rclpy.exceptions import InvalidParameterTypeException
+    errors = {}
+    for name, spec in PARAMETERS.items():
+        _declare_one(node, name, spec, errors)
+    names = node.get_parameter_or('static_colliders').value or []
+    try:
+        names = _checked('static_colliders', STRING_ARRAY, names)
+        _check_collider_names(names)
+    except ParameterError:
+        return errors  # read() says why; blocks come with the names that are valid
+    _declare_blocks(node, names, errors)
+    return errors
+
+
+def read(node, errors):
+    """Return the node's parameters as set now, parsed; ParameterError names the first bad one.
+
+    Called at each configure. ``errors`` are :func:`declare`'s, less those fixed since (a name
+    set again with the right type): the first one that still matters is raised. A collider
+    block that was never declared (a name added to ``static_colliders`` while unconfigured) is
+    declared now, taking its value from the params file when it has one.
+    """
     from rclpy.parameter import Parameter
 
-    types = {STRING: Parameter.Type.STRING, BOOL: Parameter.Type.BOOL,
-             INTEGER: Parameter.Type.INTEGER, DOUBLE: Parameter.Type.DOUBLE,
-             DOUBLE_ARRAY: Parameter.Type.DOUBLE_ARRAY,
-             STRING_ARRAY: Parameter.Type.STRING_ARRAY,
-             INTEGER_ARRAY: Parameter.Type.INTEGER_ARRAY}
-
-    def declare_one(name, spec):
-        descriptor = ParameterDescriptor(description=spec.description, read_only=not spec.run_time)
-        # An empty list has no type in rclpy (a [] default reads as a byte array, an empty YAML
-        # list arrives NOT_SET), so a parameter whose default is missing or empty is declared by
-        # type alone and reads None until given; parse() then applies the table's default.
-        default = spec.default if spec.default not in (None, []) else types[spec.value_type]
-        try:
-            value = node.declare_parameter(name, default, descriptor).value
-        except InvalidParameterTypeException as error:
-            # rclpy's text repeats the whole value (thousands of numbers for 3 x N extents):
-            # keep only the type it found.
-            given = GIVEN_TYPE.search(str(error))
-            found = given.group(1).lower() if given else str(error)[:200]
-            hint = ' (write 1.0, not 1)' \
-                if spec.value_type.startswith(DOUBLE) and found == 'integer' else ''
-            raise ParameterError(name, 'must be of type %s%s, got %s'
-                                 % (spec.value_type, hint, found)) from None
-        return None if value is None else _plain(value)
-
-    values = {name: declare_one(name, spec) for name, spec in PARAMETERS.items()}
-    # Collider blocks can only be declared once their names are known (nav2's pattern).
-    names = _checked('static_colliders', STRING_ARRAY, values['static_colliders'] or [])
+    for name in PARAMETERS:  # in the order a node that declares and reads at once meets them
+        if name in errors:
+            raise errors[name]
+    names = _checked('static_colliders', STRING_ARRAY,
+                     node.get_parameter_or('static_colliders').value or [])
     _check_collider_names(names)
-    for collider in names:
-        for key, spec in COLLIDER_PARAMETERS.items():
-            name = '%s.%s' % (collider, key)
-            values[name] = declare_one(name, spec)
+    _declare_blocks(node, names, errors)
+    blocks = ['%s.%s' % (collider, key) for collider in names for key in COLLIDER_PARAMETERS]
+    for name in blocks:
+        if name in errors:
+            raise errors[name]
+    values = {name: _value(node, name) for name in list(PARAMETERS) + blocks}
     # rclpy keeps the values of the params files and overrides in this attribute; a name the
     # node never declares stays there unread.
     unknown = unknown_parameters(getattr(node, '_parameter_overrides', {}), names)
@@ -409,6 +419,82 @@ def declare(node):
         node.set_parameters([Parameter('static_colliders',
                                        value=[c.name for c in parsed.colliders])])
     return parsed
+
+
+def check_unconfigured(name, value):
+    """Raise ParameterError unless ``name`` may be set to ``value`` while the node is unconfigured.
+
+    A name the node has (a collider's block for any valid name included) and a value of its
+    type: the values are checked together at configure, by :func:`read`.
+    """
+    collider, _, key = name.rpartition('.')
+    if name in PARAMETERS:
+        _checked(name, PARAMETERS[name].value_type, value)
+    elif key in COLLIDER_PARAMETERS and collider:
+        _check_collider_names([collider])
+        _checked(name, COLLIDER_PARAMETERS[key].value_type, value)
+    elif name.split('.')[0] not in RCLPY_PARAMETER_GROUPS:
+        raise ParameterError(name, 'undeclared: collision_node has no such parameter')
+
+
+def diagnostic_period_s(value):
+    """Return ``value`` if it is a valid ``diagnostic_updater.period``, else its default.
+
+    The diagnostics run from the node's start, before configure checks the parameters.
+    """
+    try:
+        return _positive('diagnostic_updater.period',
+                         _checked('diagnostic_updater.period', DOUBLE, value))
+    except ParameterError:
+        return PARAMETERS['diagnostic_updater.period'].default
+
+
+def _declare_blocks(node, names, errors):
+    """Declare the blocks of the colliders ``names`` not declared yet (nav2's pattern)."""
+    for collider in names:
+        for key, spec in COLLIDER_PARAMETERS.items():
+            name = '%s.%s' % (collider, key)
+            if not node.has_parameter(name):
+                _declare_one(node, name, spec, errors)
+
+
+def _declare_one(node, name, spec, errors):
+    """Declare one parameter; a value of the wrong type goes to ``errors``, the default stays."""
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.exceptions import InvalidParameterTypeException
+    from rclpy.parameter import Parameter
+
+    types = {STRING: Parameter.Type.STRING, BOOL: Parameter.Type.BOOL,
+             INTEGER: Parameter.Type.INTEGER, DOUBLE: Parameter.Type.DOUBLE,
+             DOUBLE_ARRAY: Parameter.Type.DOUBLE_ARRAY,
+             STRING_ARRAY: Parameter.Type.STRING_ARRAY,
+             INTEGER_ARRAY: Parameter.Type.INTEGER_ARRAY}
+    start_only = not spec.run_time and name not in READ_ONLY
+    descriptor = ParameterDescriptor(
+        description=spec.description, read_only=name in READ_ONLY,
+        additional_constraints=START_ONLY_CONSTRAINT if start_only else '')
+    # An empty list has no type in rclpy (a [] default reads as a byte array, an empty YAML
+    # list arrives NOT_SET), so a parameter whose default is missing or empty is declared by
+    # type alone and reads None until given; parse() then applies the table's default.
+    default = spec.default if spec.default not in (None, []) else types[spec.value_type]
+    try:
+        node.declare_parameter(name, default, descriptor)
+    except InvalidParameterTypeException as error:
+        # rclpy's text repeats the whole value (thousands of numbers for 3 x N extents):
+        # keep only the type it found.
+        given = GIVEN_TYPE.search(str(error))
+        found = given.group(1).lower() if given else str(error)[:200]
+        hint = ' (write 1.0, not 1)' \
+            if spec.value_type.startswith(DOUBLE) and found == 'integer' else ''
+        errors[name] = ParameterError(name, 'must be of type %s%s, got %s'
+                                      % (spec.value_type, hint, found))
+        node.declare_parameter(name, default, descriptor, ignore_override=True)
+
+
+def _value(node, name):
+    """Return a parameter's value as plain Python; None when it is not set."""
+    value = node.get_parameter_or(name).value
+    return None if value is None else _plain(value)
 
 
 def unknown_parameters(given, collider_names):
