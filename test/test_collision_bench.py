@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-import yaml
+from rclpy.parameter import parameter_dict_from_yaml_file, parameter_value_to_python
 
 from collision_node.benchmarks import collision_bench as bench
 from collision_node.benchmarks import report, robot
@@ -331,7 +331,7 @@ def test_robot_section_skips_each_peer_not_installed(monkeypatch):
 
 
 def _check_states_by_steps(drop_first=False):
-    """A World.check_states that keeps the contract by calling step (for these tests only)."""
+    """Return a World.check_states keeping the contract by calling step (for these tests)."""
     dtype = np.dtype(CONTACT_DTYPE.descr + [('state', np.uint32)])
 
     def check_states(world, states, half_extents):
@@ -394,14 +394,14 @@ def test_robot_targets_are_judged_on_the_measured_numbers():
 
 
 def test_robot_world_is_set_up_as_config_arm_yaml():
-    with open(REPO / 'config' / 'arm.yaml') as config:
-        parameters = yaml.safe_load(config)['collision_node']['ros__parameters']
+    parameters = {name: parameter_value_to_python(parameter.value) for name, parameter in
+                  parameter_dict_from_yaml_file(str(REPO / 'config' / 'arm.yaml')).items()}
     assert parameters['broad_phase'] == robot.ARM_BROAD_PHASE
     assert parameters['margin'] == robot.ARM_MARGIN
     assert tuple(parameters['ignored_pairs']) == robot.ARM_IGNORED_PAIRS
     assert tuple(parameters['static_colliders']) == robot.STATIC_NAMES
     for name in robot.STATIC_NAMES:
-        assert parameters[name].get('margin', 0.0) == robot.ARM_COLLIDER_MARGINS[name]
+        assert parameters.get(name + '.margin', 0.0) == robot.ARM_COLLIDER_MARGINS[name]
     assert len(robot.allowed_pairs()) == 21 + 21 - len(robot.ARM_IGNORED_PAIRS)
 
 
@@ -411,7 +411,7 @@ def test_robot_mujoco_model_gives_each_pair_the_worlds_margin():
         model, bodies = robot.mujoco_model(mujoco, meshes)
         geom = {body: geom_id for geom_id, body in bodies.items()}
         for id_a, type_b, id_b in robot.allowed_pairs():
-            both = model.geom_margin[geom[(DYNAMIC, id_a)]] + model.geom_margin[geom[(type_b,
-                                                                                        id_b)]]
-            assert both == pytest.approx(robot.pair_margin((id_a, type_b, id_b)), abs=1e-15)
+            margins = model.geom_margin[[geom[(DYNAMIC, id_a)], geom[(type_b, id_b)]]]
+            assert margins.sum() == pytest.approx(robot.pair_margin((id_a, type_b, id_b)),
+                                                  abs=1e-15)
         assert model.nexclude == len(robot.ARM_IGNORED_PAIRS)

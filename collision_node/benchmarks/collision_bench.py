@@ -561,7 +561,7 @@ class Bench:
         return rows
 
     def robot(self):
-        """The arm of config/arm.yaml: ours against python-fcl, coal and MuJoCo (robot.py)."""
+        """Time the arm of config/arm.yaml: ours, python-fcl, coal and MuJoCo (robot.py)."""
         plan = self.plan
         rows = self._guarded('robot', robot_rows, plan.robot_states, plan.robot_batch_states,
                              plan.robot_rounds, self.progress)

@@ -17,9 +17,9 @@ state with ours:
   margin as ``security_margin``;
 * MuJoCo: the scene as an MJCF model (each link a body with a free joint, the colliders
   static, geom margins that add up to each pair's margin, ``<exclude>`` for the ignored
-  pairs: :func:`mujoco_model`); ``mj_kinematics`` + ``mj_collision``, the contacts' geom pairs and distances
-  read in Python. Twice: the boxes as 8-vertex convex meshes (its general convex collider) and
-  as box geoms (its box-box collider).
+  pairs: :func:`mujoco_model`); ``mj_kinematics`` + ``mj_collision``, the contacts' geom
+  pairs and distances read in Python. Twice: the boxes as 8-vertex convex meshes (its
+  general convex collider) and as box geoms (its box-box collider).
 
 Each method is given its input in its own form, prepared outside the clock (our pose rows, the
 fcl quaternions w first, the coal rotation matrices, MuJoCo's qpos); the clock runs from
@@ -167,8 +167,9 @@ def compare(states, ours, theirs):
     """Compare a method's pair sets with ours, state by state.
 
     Returns the counts: states compared and differing, pairs only ours / only theirs report,
-    differing pairs that collide (exact distance <= 0), the largest distance of a differing pair from its margin's boundary (m; None when none
-    differ) and whether every difference lies on the boundary (within BOUNDARY_M).
+    differing pairs that collide (exact distance <= 0), the largest distance of a differing
+    pair from its margin's boundary (m; None when none differ) and whether every difference
+    lies on the boundary (within BOUNDARY_M).
     """
     differing = only_ours = only_theirs = colliding = 0
     gaps = []
@@ -219,7 +220,7 @@ class Method:
 
 class OursStep(Method):
     name = OURS_STEP
-    setup = ('a World set up as config/arm.yaml (brute_force, margin 0.05 m, the shelf\'s '
+    setup = ("a World set up as config/arm.yaml (brute_force, margin 0.05 m, the shelf's "
              '0.05 m, 7 ignored pairs), one `World.step(poses, half_extents)` per state')
 
     def __init__(self):
@@ -260,11 +261,11 @@ class OursBatch(Method):
 
 class Fcl(Method):
     name = FCL
-    setup = ('`fcl.distance` on each of the 35 allowed pairs in a Python loop, a pair '
-             'reported when its distance is at most its margin; the 7 links\' transforms set '
+    setup = ("`fcl.distance` on each of the 35 allowed pairs in a Python loop, a pair "
+             "reported when its distance is at most its margin; the 7 links' transforms set "
              'by `setTranslation` and `setQuatRotation` first. Its `DistanceResult` holds '
              '-inf, so python-fcl keeps no nearest points (it would build Python objects for '
-             'them on every call); the distance is the call\'s return value')
+             "them on every call); the distance is the call's return value")
 
     def __init__(self):
         try:
@@ -307,8 +308,8 @@ class Fcl(Method):
 class Coal(Method):
     name = COAL
     setup = ('a `coal.ComputeCollision` per allowed pair (built once), called in a Python '
-             'loop with the 7 links\' `Transform3s` and a `CollisionRequest` whose '
-             '`security_margin` is the pair\'s margin')
+             "loop with the 7 links' `Transform3s` and a `CollisionRequest` whose "
+             "`security_margin` is the pair's margin")
 
     def __init__(self):
         try:
@@ -404,6 +405,7 @@ def mujoco_model(mujoco, meshes):
 
 
 class MuJoCo(Method):
+
     def __init__(self, meshes):
         try:
             import mujoco
@@ -414,11 +416,11 @@ class MuJoCo(Method):
         self.setup = (
             'MuJoCo %s: links as bodies with a free joint, colliders as world geoms (the '
             'floor in a jointless body, for its `<exclude>`), geom margins adding up to each '
-            'pair\'s, `<exclude>` for the 7 ignored pairs; '
-            'per state `qpos` written, `mj_kinematics` + `mj_collision`, the contacts\' geom '
-            'pairs and `dist` copied out; %s' % (mujoco.__version__, (
-                'each box an 8-vertex convex mesh (MuJoCo\'s general convex collider)' if meshes
-                else 'box geoms (MuJoCo\'s box-box collider)')))
+            "pair's, `<exclude>` for the 7 ignored pairs; per state `qpos` written, "
+            "`mj_kinematics` + `mj_collision`, the contacts' geom pairs and `dist` copied out; "
+            '%s' % (mujoco.__version__, (
+                "each box an 8-vertex convex mesh (MuJoCo's general convex collider)" if meshes
+                else "box geoms (MuJoCo's box-box collider)")))
         self._model, self._bodies = mujoco_model(mujoco, meshes)
         self._data = mujoco.MjData(self._model)
 
@@ -488,7 +490,8 @@ def robot_rows(states_per_round, batch_states, rounds, progress=print):
     for round_index in range(rounds):
         offset = round_index / rounds
         states = arm_states(states_per_round, offset)
-        batch = arm_states(batch_states, offset)
+        batch = arm_states(batch_states, offset) if any(
+            method.batch for method in running) else None
         compared_states.append(states)
         order = running[round_index % len(running):] + running[:round_index % len(running)]
         for method in list(order):
