@@ -32,14 +32,26 @@ KERNELS = set()
 
 def kernel(function):
     """Compile ``function`` with the package's JIT options."""
-    dispatcher = _njit(function)
+    dispatcher = _njit(function, JIT_OPTIONS)
     KERNELS.add(dispatcher)
     return dispatcher
 
 
-def _njit(function):
+def inlined_kernel(function):
+    """Compile ``function`` to be inlined into the kernels that call it (numba IR).
+
+    For per-item helpers that take arrays and are called in a kernel's loop (one pair, one
+    box): a call numba does not inline reference-counts every array it is handed (two atomic
+    operations each, per call), which costs more than the helper's own work.
+    """
+    dispatcher = _njit(function, dict(JIT_OPTIONS, inline='always'))
+    KERNELS.add(dispatcher)
+    return dispatcher
+
+
+def _njit(function, options):
     try:
-        return numba.njit(**JIT_OPTIONS)(function)
+        return numba.njit(**options)(function)
     except RuntimeError as error:
         if 'no locator available' not in str(error):
             raise
@@ -47,6 +59,6 @@ def _njit(function):
     # this decoration only, so other numba users in the process keep their own choice.
     previous, numba.config.CACHE_DIR = numba.config.CACHE_DIR, FALLBACK_CACHE_DIR
     try:
-        return numba.njit(**JIT_OPTIONS)(function)
+        return numba.njit(**options)(function)
     finally:
         numba.config.CACHE_DIR = previous

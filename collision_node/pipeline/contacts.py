@@ -10,7 +10,7 @@ is the first time in the tick's interval [0, 1] at which the pair came within it
 """
 import numpy as np
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.sat import COLLIDING, NEAR
 
 DYNAMIC = 0  # body types, MoveIt's body_type convention
@@ -204,19 +204,11 @@ def _assemble(pairs, colliding, first_body, stop_body, depth, normal, point, n_s
         row = ends[body]
         ends[body] = row + 1
         b = pairs[k, 1]
-        out[row].x = point[k, 0]
-        out[row].y = point[k, 1]
-        out[row].z = point[k, 2]
-        out[row].normal_x = normal[k, 0]
-        out[row].normal_y = normal[k, 1]
-        out[row].normal_z = normal[k, 2]
-        out[row].depth = max(depth[k], 0.0)
-        out[row].distance = -depth[k]  # a NEAR pair's depth is minus its distance
-        out[row].toi = 1.0 if toi is None else toi[k]
-        out[row].id_a = body
-        out[row].type_a = DYNAMIC
-        out[row].id_b = static_ids[b] if b < n_static else dynamic_ids[b - n_static]
-        out[row].type_b = STATIC if b < n_static else DYNAMIC
+        write_contact(out, row, (point[k, 0], point[k, 1], point[k, 2]),
+                      (normal[k, 0], normal[k, 1], normal[k, 2]), depth[k],
+                      1.0 if toi is None else toi[k], body,
+                      static_ids[b] if b < n_static else dynamic_ids[b - n_static],
+                      STATIC if b < n_static else DYNAMIC)
     held = out[:1].copy()  # a row's copy while insertion sort moves the others
     for body in range(first_body, stop_body):  # ends[body] is now the end of the body's rows
         end = ends[body]
@@ -234,6 +226,24 @@ def _assemble(pairs, colliding, first_body, stop_body, depth, normal, point, n_s
                     j -= 1
                 out[j + 1] = held[0]
         start = end
+
+
+@inlined_kernel
+def write_contact(out, row, point, normal, depth, toi, id_a, id_b, type_b):
+    """Write a pair's contact to ``out[row]``: ``depth`` as the SAT gives it (< 0: NEAR)."""
+    out[row].x = point[0]
+    out[row].y = point[1]
+    out[row].z = point[2]
+    out[row].normal_x = normal[0]
+    out[row].normal_y = normal[1]
+    out[row].normal_z = normal[2]
+    out[row].depth = max(depth, 0.0)
+    out[row].distance = -depth  # a NEAR pair's depth is minus its distance
+    out[row].toi = toi
+    out[row].id_a = id_a
+    out[row].type_a = DYNAMIC
+    out[row].id_b = id_b
+    out[row].type_b = type_b
 
 
 @kernel

@@ -23,7 +23,7 @@ import reprlib
 
 import numpy as np
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATIC
 
 DEFAULT_CATEGORY = 1
@@ -125,32 +125,53 @@ class PairFilter:
 def _keep_checked(pairs, n_static, static_ids, static_categories, static_masks,
                   static_ignorable, dynamic_ids, categories, masks, ignored_keys,
                   dynamic_ignorable):
-    per_body = len(categories) > 1
-    per_body_mask = len(masks) > 1
     kept = 0
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
         b = pairs[k, 1]
         id_a = dynamic_ids[a - n_static]
-        category_a = categories[id_a if per_body else 0]
-        mask_a = masks[id_a if per_body_mask else 0]
         if b < n_static:
-            category_b = static_categories[b]
-            mask_b = static_masks[b]
-            key_b = static_ids[b] | _STATIC_KEY_BIT
-            ignorable_b = static_ignorable[b]
+            keep = pair_checked(id_a, static_key(static_ids[b]), static_categories[b],
+                                static_masks[b], static_ignorable[b], categories, masks,
+                                ignored_keys, dynamic_ignorable)
         else:
             id_b = dynamic_ids[b - n_static]
-            category_b = categories[id_b if per_body else 0]
-            mask_b = masks[id_b if per_body_mask else 0]
-            key_b = id_b
-            ignorable_b = id_b < len(dynamic_ignorable) and dynamic_ignorable[id_b]
-        keep = (category_a & mask_b) != 0 and (category_b & mask_a) != 0
-        if keep and ignorable_b and id_a < len(dynamic_ignorable) and dynamic_ignorable[id_a]:
-            key = (np.int64(id_a) << 32) | key_b
-            at = np.searchsorted(ignored_keys, key)
-            keep = not (at < len(ignored_keys) and ignored_keys[at] == key)
+            category_b, mask_b, ignorable_b = dynamic_bits(id_b, categories, masks,
+                                                           dynamic_ignorable)
+            keep = pair_checked(id_a, id_b, category_b, mask_b, ignorable_b, categories, masks,
+                                ignored_keys, dynamic_ignorable)
         pairs[kept, 0] = a
         pairs[kept, 1] = b
         kept += keep
     return kept
+
+
+@kernel
+def static_key(static_id):
+    """Return a static body's id as it appears in an ignored pair's key."""
+    return static_id | _STATIC_KEY_BIT
+
+
+@inlined_kernel
+def dynamic_bits(body, categories, masks, dynamic_ignorable):
+    """Return (category, mask, named in an ignored pair) of dynamic body ``body``."""
+    return (categories[body if len(categories) > 1 else 0],
+            masks[body if len(masks) > 1 else 0],
+            body < len(dynamic_ignorable) and dynamic_ignorable[body])
+
+
+@inlined_kernel
+def pair_checked(id_a, key_b, category_b, mask_b, ignorable_b, categories, masks,
+                 ignored_keys, dynamic_ignorable):
+    """Whether dynamic body ``id_a`` and body b pass both rules.
+
+    b is given by its key (its id; a static one's with :func:`static_key`), its bits and
+    whether it is named in an ignored pair.
+    """
+    category_a, mask_a, ignorable_a = dynamic_bits(id_a, categories, masks, dynamic_ignorable)
+    keep = (category_a & mask_b) != 0 and (category_b & mask_a) != 0
+    if keep and ignorable_b and ignorable_a:
+        key = (np.int64(id_a) << 32) | key_b
+        at = np.searchsorted(ignored_keys, key)
+        keep = not (at < len(ignored_keys) and ignored_keys[at] == key)
+    return keep

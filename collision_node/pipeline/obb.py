@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 
 # A quaternion whose norm is within this of 1 is normalised; farther off it is rejected.
 # 1e-3 accepts quaternions printed with 4+ significant digits or stored as float32, and
@@ -154,8 +154,8 @@ def _rotation_from_quaternion(x, y, z, w, out):
 
 
 @kernel
-def _problem(poses, half_extents, i):
-    """Return why body i cannot be a box (a REASONS code), or VALID."""
+def _problem(poses, half_extents, i, e):
+    """Return why body i (its half extents row e) cannot be a box (a REASONS code), or VALID."""
     for k in range(7):
         if not math.isfinite(poses[i, k]):
             return NON_FINITE_POSE
@@ -166,8 +166,8 @@ def _problem(poses, half_extents, i):
     if not abs(math.sqrt(x * x + y * y + z * z + w * w) - 1.0) <= QUATERNION_NORM_TOLERANCE:
         return BAD_QUATERNION
     for k in range(3):
-        e = half_extents[i, k]
-        if not (math.isfinite(e) and 0.0 <= e <= MAX_COORDINATE):
+        e_k = half_extents[e, k]
+        if not (math.isfinite(e_k) and 0.0 <= e_k <= MAX_COORDINATE):
             return BAD_HALF_EXTENTS
     return VALID
 
@@ -176,7 +176,7 @@ def _problem(poses, half_extents, i):
 def _first_problem(poses, half_extents):
     """Return (first body that cannot be a box, its REASONS code), or (-1, VALID)."""
     for i in range(poses.shape[0]):
-        code = _problem(poses, half_extents, i)
+        code = _problem(poses, half_extents, i, i)
         if code != VALID:
             return i, code
     return -1, VALID
@@ -185,31 +185,41 @@ def _first_problem(poses, half_extents):
 @kernel
 def _write_boxes(poses, half_extents, start, rows, boxes):
     """Write body i to row ``start + rows[i]``; return (first bad body, reason) or (-1, 0)."""
-    centers, rotations, extents, aabbs, radii = (boxes.centers, boxes.rotations,
-                                                 boxes.half_extents, boxes.aabbs, boxes.radii)
     for i in range(poses.shape[0]):
-        code = _problem(poses, half_extents, i)
+        code = write_box(poses, half_extents, i, i, start + rows[i], boxes.centers,
+                         boxes.rotations, boxes.half_extents, boxes.aabbs, boxes.radii)
         if code != VALID:
             return i, code
-        x, y, z, w = poses[i, 3], poses[i, 4], poses[i, 5], poses[i, 6]
-        norm = math.sqrt(x * x + y * y + z * z + w * w)
-        # Scattered writes, sequential reads: measured faster than the other way round.
-        b = start + rows[i]
-        _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm, rotations[b])
-        radius_sq = 0.0
-        for k in range(3):
-            centers[b, k] = poses[i, k]
-            extents[b, k] = half_extents[i, k]
-            radius_sq += half_extents[i, k] * half_extents[i, k]
-        radii[b] = math.sqrt(radius_sq)
-        for k in range(3):
-            reach = 0.0
-            for j in range(3):
-                reach += abs(rotations[b, k, j]) * extents[b, j]
-            reach += AABB_RELATIVE_MARGIN * (reach + abs(centers[b, k]))
-            aabbs[b, 0, k] = centers[b, k] - reach
-            aabbs[b, 1, k] = centers[b, k] + reach
     return -1, VALID
+
+
+@inlined_kernel
+def write_box(poses, half_extents, i, e, b, centers, rotations, extents, aabbs, radii):
+    """Write body i (its pose row i, its half extents row e) to box row b; return a code.
+
+    The code is VALID, or why the body cannot be a box (REASONS); then nothing is written.
+    """
+    code = _problem(poses, half_extents, i, e)
+    if code != VALID:
+        return code
+    x, y, z, w = poses[i, 3], poses[i, 4], poses[i, 5], poses[i, 6]
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    # Scattered writes, sequential reads: measured faster than the other way round.
+    _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm, rotations[b])
+    radius_sq = 0.0
+    for k in range(3):
+        centers[b, k] = poses[i, k]
+        extents[b, k] = half_extents[e, k]
+        radius_sq += half_extents[e, k] * half_extents[e, k]
+    radii[b] = math.sqrt(radius_sq)
+    for k in range(3):
+        reach = 0.0
+        for j in range(3):
+            reach += abs(rotations[b, k, j]) * extents[b, j]
+        reach += AABB_RELATIVE_MARGIN * (reach + abs(centers[b, k]))
+        aabbs[b, 0, k] = centers[b, k] - reach
+        aabbs[b, 1, k] = centers[b, k] + reach
+    return VALID
 
 
 @kernel
@@ -256,13 +266,21 @@ def overlap_across(aabbs_a, a, aabbs_b, b):
 def spheres_apart(centers, radii, a, b):
     """Return True when the bounding spheres are apart by more than the touching tolerance.
 
-    Compares squared distances (the paper's "no square roots"); the radii are stored.
+    Compares squared distances (the "Engine Algorithms" sphere test: no square roots); the
+    radii are stored.
     """
+    return centres_apart((centers[a, 0], centers[a, 1], centers[a, 2]),
+                         (centers[b, 0], centers[b, 1], centers[b, 2]), radii[a], radii[b])
+
+
+@kernel
+def centres_apart(center_a, center_b, radius_a, radius_b):
+    """:func:`spheres_apart` for two spheres given as tuples."""
     dist_sq = 0.0
-    scale = radii[a] + radii[b]
+    scale = radius_a + radius_b
     for i in range(3):
-        d = centers[b, i] - centers[a, i]
+        d = center_b[i] - center_a[i]
         dist_sq += d * d
-        scale += abs(centers[a, i]) + abs(centers[b, i])
-    reach = radii[a] + radii[b] + TIE_ULPS * EPS * scale
+        scale += abs(center_a[i]) + abs(center_b[i])
+    reach = radius_a + radius_b + TIE_ULPS * EPS * scale
     return dist_sq > reach * reach

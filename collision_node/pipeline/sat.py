@@ -77,7 +77,7 @@ from collision_node.pipeline.frames import (column, cross, dot, edge_overlap, fa
                                             face_b_overlap, matrix, MIN_EDGE_AXIS_LENGTH,
                                             projection_gap, relative_pose, rotate, sum_abs,
                                             zero_if_finite, zero_if_finite_matrix)
-from collision_node.pipeline.obb import EPS, spheres_apart, TIE_ULPS
+from collision_node.pipeline.obb import centres_apart, EPS, TIE_ULPS
 
 SEPARATED = 0
 COLLIDING = 1
@@ -221,62 +221,82 @@ def _collide_pairs(centers, rotations, extents, radii, pairs, sphere_prefilter, 
                    box_margins, status, depth, normal, point):
     """Run collide_pairs' loop; ``margin`` None (no margin at all) or a float.
 
-    ``box_margins`` is None or one margin per box.
+    ``box_margins`` is None or one margin per box. The normal and point are written for
+    COLLIDING and NEAR pairs only.
     """
     sat_tests = 0
     for k in range(pairs.shape[0]):
         a = pairs[k, 0]
         b = pairs[k, 1]
-        ea = (extents[a, 0], extents[a, 1], extents[a, 2])
-        eb = (extents[b, 0], extents[b, 1], extents[b, 2])
-        ra = matrix(rotations, a)
-        rb = matrix(rotations, b)
-        if sphere_prefilter and spheres_apart(centers, radii, a, b):
-            # NaN centres and radii never pass the sphere test; the rest is checked here.
-            finite = zero_if_finite_matrix(ra) + zero_if_finite_matrix(rb) \
-                + zero_if_finite(ea) + zero_if_finite(eb) == 0.0
-            status[k] = SEPARATED if finite else INVALID
-            continue
-        sat_tests += 1
-        d = (centers[b, 0] - centers[a, 0], centers[b, 1] - centers[a, 1],
-             centers[b, 2] - centers[a, 2])
-        rel, t = relative_pose(ra, rb, d)
-        # Every input reaches ea, eb, d, R (all entries of both rotations) or t: a NaN or an
-        # Inf anywhere, or an overflow, shows up here.
-        scale = sum_abs(ea) + sum_abs(eb) + sum_abs(d)
-        if not (math.isfinite(scale)
-                and zero_if_finite_matrix(rel) + zero_if_finite(t) == 0.0):
-            status[k] = INVALID
-            continue
-        tie = TIE_ULPS * EPS * scale
-        if margin is None:
-            status[k], depth[k], axis_id = _separating_axis_test(rel, t, ea, eb, tie, None)
-            pair_margin = 0.0
-        else:
-            pair_margin = margin if box_margins is None else \
-                margin + box_margins[a] + box_margins[b]
-            status[k], depth[k], axis_id = _separating_axis_test(rel, t, ea, eb, tie,
-                                                                 pair_margin)
-        if status[k] == COLLIDING:
-            axis, local_point = _contact(rel, t, ea, eb, tie, axis_id)
-        elif margin is not None and status[k] == NEAR:
-            widest_gap = -depth[k]
-            distance, on_a, on_b, closest = box_distance(rel, t, ea, eb)
-            if not distance <= pair_margin:
-                status[k] = SEPARATED
-                continue
-            depth[k] = -distance
-            axis = _near_normal(rel, t, ea, eb, tie, closest, widest_gap, axis_id)
-            local_point = (0.5 * (on_a[0] + on_b[0]), 0.5 * (on_a[1] + on_b[1]),
-                           0.5 * (on_a[2] + on_b[2]))
-        else:
-            continue
-        world_normal = rotate(ra, axis)
-        world_offset = rotate(ra, local_point)
-        for m in range(3):
-            normal[k, m] = world_normal[m]
-            point[k, m] = centers[a, m] + world_offset[m]
+        tested, status[k], depth[k], pair_normal, pair_point = collide_boxes(
+            box(centers, rotations, extents, radii, a), box(centers, rotations, extents, radii, b),
+            sphere_prefilter, pair_margin(margin, box_margins, a, b))
+        sat_tests += tested
+        if status[k] == COLLIDING or status[k] == NEAR:
+            for m in range(3):
+                normal[k, m] = pair_normal[m]
+                point[k, m] = pair_point[m]
     return sat_tests
+
+
+@kernel
+def box(centers, rotations, extents, radii, a):
+    """Return box ``a`` as tuples: (centre, rotation row-major, half extents, sphere radius)."""
+    return ((centers[a, 0], centers[a, 1], centers[a, 2]), matrix(rotations, a),
+            (extents[a, 0], extents[a, 1], extents[a, 2]), radii[a])
+
+
+@kernel
+def pair_margin(margin, box_margins, a, b):
+    """Return the margin of the pair (a, b): None when there is no margin at all."""
+    if margin is None:
+        return None
+    return margin if box_margins is None else margin + box_margins[a] + box_margins[b]
+
+
+@kernel
+def collide_boxes(box_a, box_b, sphere_prefilter, margin):
+    """Return (1 if the pair reached the SAT, status, depth, normal, point) of two boxes.
+
+    As :func:`collide_pairs` for one pair of :func:`box` tuples, ``margin`` the pair's (None:
+    no margin at all); world frame; normal and point are zeros unless COLLIDING or NEAR. The
+    boxes come as tuples, not arrays: a kernel that calls this in its loop hands it no array
+    to reference-count.
+    """
+    zero = (0.0, 0.0, 0.0)
+    ca, ra, ea, radius_a = box_a
+    cb, rb, eb, radius_b = box_b
+    if sphere_prefilter and centres_apart(ca, cb, radius_a, radius_b):
+        # NaN centres and radii never pass the sphere test; the rest is checked here.
+        finite = zero_if_finite_matrix(ra) + zero_if_finite_matrix(rb) \
+            + zero_if_finite(ea) + zero_if_finite(eb) == 0.0
+        return 0, SEPARATED if finite else INVALID, 0.0, zero, zero
+    d = (cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2])
+    rel, t = relative_pose(ra, rb, d)
+    # Every input reaches ea, eb, d, R (all entries of both rotations) or t: a NaN or an
+    # Inf anywhere, or an overflow, shows up here.
+    scale = sum_abs(ea) + sum_abs(eb) + sum_abs(d)
+    if not (math.isfinite(scale) and zero_if_finite_matrix(rel) + zero_if_finite(t) == 0.0):
+        return 1, INVALID, 0.0, zero, zero
+    tie = TIE_ULPS * EPS * scale
+    status, depth, axis_id = _separating_axis_test(rel, t, ea, eb, tie, margin)
+    if status == COLLIDING:
+        axis, local_point = _contact(rel, t, ea, eb, tie, axis_id)
+    elif margin is not None and status == NEAR:
+        widest_gap = -depth
+        distance, on_a, on_b, closest = box_distance(rel, t, ea, eb)
+        if not distance <= margin:
+            return 1, SEPARATED, depth, zero, zero
+        depth = -distance
+        axis = _near_normal(rel, t, ea, eb, tie, closest, widest_gap, axis_id)
+        local_point = (0.5 * (on_a[0] + on_b[0]), 0.5 * (on_a[1] + on_b[1]),
+                       0.5 * (on_a[2] + on_b[2]))
+    else:
+        return 1, status, depth, zero, zero
+    world_offset = rotate(ra, local_point)
+    return 1, status, depth, rotate(ra, axis), (ca[0] + world_offset[0],
+                                                ca[1] + world_offset[1],
+                                                ca[2] + world_offset[2])
 
 
 @kernel

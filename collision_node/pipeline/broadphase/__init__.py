@@ -30,6 +30,19 @@ holds:
     after the cheap filters that skip a pair without looking at its boxes (a cell phase's
     first-shared-cell rule, a tree's node boxes, the sweep's sorted order). The array stays
     valid until the next call.
+``validate(boxes, n_static, n_dynamic, loose=None)``
+    For testing (Box2D's ``b2DynamicTree_Validate``): checks the phase's whole structure,
+    against itself and against ``boxes`` as its calls left them: static rows as of the last
+    set_static or move_static, dynamic rows ``[n_static, n_static + n_dynamic)`` as of the
+    last find_pairs. ``loose`` (bool per static row, None: none) marks the rows move_static
+    did not keep since the last set_static: the structure still holds them where they were,
+    so only their place in it is checked, not their boxes. Raises
+    :class:`~.validation.InvalidStructure` (an AssertionError) naming the first
+    inconsistency. A dynamic structure made for other counts (bodies came or went, or
+    set_static changed the static count) is checked on its own only, as the next find_pairs
+    makes a new one: after a set_static on boxes whose dynamic rows are not the last tick's
+    (the World writes new storage), pass ``n_dynamic=0``. Plain Python and numpy, never
+    called on the tick path: call it from tests, after any call, before the boxes change.
 ``name``
     The phase's name in :data:`NAMES`; ``auto`` sets it to the phase that ran last.
 ``stats``
@@ -49,6 +62,7 @@ from collision_node.pipeline.broadphase.kd_tree import KdTreePhase
 from collision_node.pipeline.broadphase.octree import MAX_DEPTH, Octree
 from collision_node.pipeline.broadphase.sphere import Sphere
 from collision_node.pipeline.broadphase.sweep_and_prune import SweepAndPrune
+from collision_node.pipeline.broadphase.validation import InvalidStructure  # noqa: F401
 
 
 class Settings(NamedTuple):

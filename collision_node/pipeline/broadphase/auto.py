@@ -15,7 +15,8 @@ pass it clearly to leave), and a new choice must hold for ``SWITCH_AFTER_TICKS``
 before it is taken, so a scene hovering at a threshold does not flap (each switch throws away
 the structures of the phase left, e.g. the grid's static table). The first tick, and a scene
 beyond a threshold by ``URGENT_MARGIN`` (100,000 bodies arriving while brute force runs: one
-such tick takes seconds), switch at once.
+such tick takes seconds), switch at once. ``validate`` (for tests) validates the phase that
+ran the last tick.
 """
 import numpy as np
 
@@ -24,6 +25,7 @@ from collision_node.pipeline.broadphase import make_broad_phase
 from collision_node.pipeline.broadphase.brute_force import BruteForce
 from collision_node.pipeline.broadphase.grid import Grid
 from collision_node.pipeline.broadphase.sweep_and_prune import SweepAndPrune
+from collision_node.pipeline.broadphase.validation import check
 
 BRUTE_FORCE_WORK = 1500   # pair comparisons: brute force below (measured crossover ~1,000-2,000)
 GRID_BODIES = 700         # bodies: sweep and prune below, the grid above (crossover 500-1,000)
@@ -79,6 +81,17 @@ class Auto:
         self.name = phase.name
         self.stats = dict(phase.stats, auto_switches=self.switches)
         return pairs
+
+    def validate(self, boxes, n_static, n_dynamic, loose=None):
+        """Validate the phase that ran the last tick (the others' lists are of older ticks).
+
+        For testing; raises InvalidStructure (see the phases' own ``validate``).
+        """
+        if self._current is None:
+            return  # no tick yet: no phase made
+        phase = self._phases[self._current]
+        check(self.name == phase.name, 'auto names %s, %s ran', self.name, phase.name)
+        phase.validate(boxes, n_static, n_dynamic, loose)
 
     def _choose(self, aabbs, n_static, n_dynamic, margin):
         """Name the phase the scene asks for, thresholds moved away from the current one."""

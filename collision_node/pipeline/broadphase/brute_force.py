@@ -1,12 +1,14 @@
 """Brute force: every dynamic box against every static box and every other dynamic box.
 
 The baseline of both seed papers, O(D·S + D²/2) comparisons. The comparison is an AABB
-overlap test; the ``sphere`` phase runs the same loop with the bounding-sphere test.
+overlap test; the ``sphere`` phase runs the same loop with the bounding-sphere test. Nothing
+is built, so ``validate`` (for tests) only checks the counts.
 """
 import numpy as np
 
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase.pair_buffer import emit, PairBuffer
+from collision_node.pipeline.broadphase.validation import check, loose_mask
 from collision_node.pipeline.obb import overlap_across, spheres_apart
 
 CHUNK = 32  # rows tested together before any pair is stored
@@ -27,6 +29,13 @@ class BruteForce:
 
     def move_static(self, boxes, rows):
         return np.ones(len(rows), np.bool_)  # nothing built: every tick reads the boxes
+
+    def validate(self, boxes, n_static, n_dynamic, loose=None):
+        """Check the counts against ``boxes`` (nothing is built to check). For testing."""
+        loose_mask(loose, n_static)
+        check(0 <= n_static and 0 <= n_dynamic and n_static + n_dynamic <= boxes.capacity,
+              '%d static and %d dynamic boxes in storage for %d', n_static, n_dynamic,
+              boxes.capacity)
 
     def find_pairs(self, boxes, n_static, n_dynamic, moved=None):
         return self._buffer.fill(_all_pairs, boxes.aabbs, boxes.centers, boxes.radii,

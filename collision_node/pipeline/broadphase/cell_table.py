@@ -29,6 +29,8 @@ from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase.cells import (
     ALL_FIRST, bucket_of, cell_key, cell_range, first_cell_flags, LOCAL_BITS,
     MAX_CELLS_PER_BODY)
+from collision_node.pipeline.broadphase.validation import (
+    cell_counts, cell_of_key, cell_ranges, check, check_permutation, range_holds)
 
 # Buckets per entry: at 2 a bucket holds ~1 entry on average, so reading one is nearly free.
 BUCKETS_PER_ENTRY = 2
@@ -60,6 +62,65 @@ def empty_table(boxes=0, entries=0, buckets=2 << LOCAL_BITS):
                      np.zeros(boxes, np.int64), np.zeros(buckets, np.int64),
                      np.zeros(entries, np.uint32), np.zeros(entries, np.int64),
                      np.zeros(entries, np.uint8), np.zeros(4, np.int64))
+
+
+def validate_table(table, lattice, aabbs, rows, first_row, held, what):
+    """Check a table filled with boxes ``rows`` (sorted; filled in any order). For testing.
+
+    Raises InvalidStructure at the first break. The slots hold each of ``rows`` once; a
+    slot's cell range is that of its AABB copy, and the copy is the row's box in ``aabbs``
+    where ``held`` (bool per row of ``rows``; a loose static box's copy keeps where it was
+    entered); a box is big exactly when its range has more than ``MAX_CELLS_PER_BODY``
+    cells, and then it is listed in ``big_rows`` and has no entry; every other box has one
+    entry per cell of its range, in the bucket of that cell, with the cell's key and
+    first-cell flags; the buckets partition the entries (CSR).
+    """
+    n = len(rows)
+    entries, buckets, big, shift = (int(size) for size in table.sizes)
+    check(0 < shift < 64 and buckets == 1 << (64 - shift + LOCAL_BITS)
+          and buckets <= len(table.bucket_end) and 0 <= entries <= len(table.entry_slot)
+          and n <= len(table.rows), '%s: sizes %s do not fit its arrays', what,
+          table.sizes.tolist())
+    slot_rows = table.rows[:n]
+    check_permutation(slot_rows, rows, what + ' slots')
+    copies, ranges = table.aabbs[:n], table.ranges[:n]
+    check(np.array_equal(ranges, cell_ranges(lattice, copies, range(n))),
+          "%s: a slot's cell range is not that of its AABB copy", what)
+    held_slots = np.asarray(held, np.bool_)[np.searchsorted(rows, slot_rows)] \
+        if n else np.zeros(0, np.bool_)
+    stale = np.flatnonzero(held_slots & np.any(copies != aabbs[slot_rows], axis=(1, 2)))
+    check(not len(stale), '%s: the copy of box %d is %s, the box is %s', what,
+          slot_rows[stale[0]] if len(stale) else -1,
+          copies[stale[0]].tolist() if len(stale) else None,
+          aabbs[slot_rows[stale[0]]].tolist() if len(stale) else None)
+    counts = cell_counts(ranges)
+    is_big = counts > MAX_CELLS_PER_BODY
+    check(np.array_equal(table.is_big[slot_rows - first_row], is_big),
+          '%s: big flags disagree with the cell ranges', what)
+    check(table.big_rows[:big].tolist() == slot_rows[is_big].tolist(),
+          '%s: big rows %s, boxes over %d cells %s', what, table.big_rows[:big].tolist()[:20],
+          MAX_CELLS_PER_BODY, slot_rows[is_big].tolist()[:20])
+    check(entries == np.sum(counts[~is_big]), '%s: %d entries for %d cells of small boxes',
+          what, entries, np.sum(counts[~is_big]))
+    ends = table.bucket_end[:buckets]
+    check(np.all(np.diff(ends) >= 0) and ends[0] >= 0 and ends[-1] == entries,
+          '%s: bucket ends are not a partition of the %d entries', what, entries)
+    seen = set()
+    for bucket in np.flatnonzero(np.diff(ends, prepend=0)):
+        for e in range(bucket_start(ends, bucket), ends[bucket]):
+            slot, key = int(table.entry_slot[e]), int(table.entry_key[e])
+            cell = cell_of_key(key)
+            check(slot < n and not is_big[slot] and range_holds(ranges, slot, cell)
+                  and (slot, cell) not in seen,
+                  '%s: entry %d of slot %d (range %s) names cell %s%s', what, e, slot,
+                  ranges[slot].tolist() if slot < n else None, cell,
+                  ' twice' if (slot, cell) in seen else '')
+            seen.add((slot, cell))
+            check(bucket_of(*cell, shift) == bucket, '%s: entry %d of cell %s is in bucket %d, '
+                  'not %d', what, e, cell, bucket, bucket_of(*cell, shift))
+            check(table.entry_first[e] == first_cell_flags(ranges, slot, *cell),
+                  '%s: entry %d of cell %s has first-cell flags %d, not %d', what, e, cell,
+                  table.entry_first[e], first_cell_flags(ranges, slot, *cell))
 
 
 def build_table(table, lattice, aabbs, rows, n, first_row, shift=AUTO_SHIFT):

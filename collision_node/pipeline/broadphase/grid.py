@@ -23,6 +23,7 @@ branches (in a cell a hit is a coin flip).
 Invariants: the cell mapping is monotone, so boxes whose AABBs overlap have intersecting
 cell ranges and meet in their first shared cell, in which both are entered; the lattice is
 unbounded (hashed keys, clamped at ±2**20 cells), so there is no domain to leave.
+:meth:`Grid.validate` (for tests) checks both tables entry by entry.
 
 When to use: many bodies of similar size, anywhere in space (uniform, clustered or flying
 apart: the hash has no domain and the cell side follows the body size). It degrades when sizes
@@ -34,11 +35,12 @@ import numpy as np
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase.cell_table import (
     AUTO_SHIFT, bucket_start, BUCKETS_PER_ENTRY, build_table, empty_table,
-    shift_for, spatial_order)
+    shift_for, spatial_order, validate_table)
 from collision_node.pipeline.broadphase.cells import (
     ALL_FIRST, keeps_cells, make_lattice, mean_side_and_center, pairs_with_all_dynamic,
     pairs_with_all_static)
 from collision_node.pipeline.broadphase.pair_buffer import emit, emit_if, PairBuffer
+from collision_node.pipeline.broadphase.validation import check, check_permutation, loose_mask
 from collision_node.pipeline.obb import overlap_across
 from collision_node.pipeline.workers import Workers
 
@@ -77,6 +79,7 @@ class Grid:
         self._static_mean_side = 0.0
         self._order = np.zeros(0, np.int64)  # dynamic rows, neighbours together
         self._order_of = (0, 0)  # (n_static, n_dynamic) the order was made for
+        self._dynamic_lattice = None  # the lattice of the last dynamic table, for validate
         self.stats = {'static_builds': 0}
 
     def set_static(self, boxes, n_static):
@@ -131,6 +134,43 @@ class Grid:
         spatial_order(dynamic, self._order)  # next tick's filling order
         return self._joined([pairs for pairs, _ in parts]), sum(c for _, c in parts)
 
+    def validate(self, boxes, n_static, n_dynamic, loose=None):
+        """Check both tables against ``boxes``; raise InvalidStructure if wrong. For testing.
+
+        See :func:`~.cell_table.validate_table`: the static table (once built) holds every
+        static box, a loose one in the cells it was entered in; the dynamic table holds the
+        dynamic boxes of the last tick and, when there are static boxes, has the static
+        table's lattice and buckets (the pair loop reads the two bucket by bucket). A dynamic
+        table made for other counts than ``n_static`` and ``n_dynamic`` is left alone: the
+        next tick fills a new one.
+        """
+        loose = loose_mask(loose, n_static)
+        aabbs = boxes.aabbs
+        static = self._static
+        if n_static and self._static_lattice is not None:
+            check(len(self._static_slots) == n_static, 'static slots for %d boxes, the scene '
+                  'has %d', len(self._static_slots), n_static)
+            validate_table(static, self._static_lattice, aabbs, np.arange(n_static), 0,
+                           ~loose, 'static table')
+            check(np.array_equal(self._static_slots[static.rows[:n_static]],
+                                 np.arange(n_static)), 'static slots are not those of the rows')
+        if self._static_reuse is not None:
+            check_permutation(self._static_reuse[0], np.arange(n_static), 'reused static order')
+        n_total = n_static + n_dynamic
+        if self._order_of != (n_static, n_dynamic):
+            return
+        check_permutation(self._order[:n_dynamic], np.arange(n_static, n_total), 'fill order')
+        if self._dynamic_lattice is None:
+            return  # no tick yet
+        dynamic = self._dynamic
+        validate_table(dynamic, self._dynamic_lattice, aabbs, np.arange(n_static, n_total),
+                       n_static, np.ones(n_dynamic, np.bool_), 'dynamic table')
+        if n_static and self._static_lattice is not None:
+            check(self._dynamic_lattice == self._static_lattice
+                  and dynamic.sizes[3] == static.sizes[3],
+                  'dynamic table on another lattice or shift (%d) than the static one (%d)',
+                  dynamic.sizes[3], static.sizes[3])
+
     def _joined(self, parts):
         """Return the pairs of all parts in one array (the only part, if the others are empty)."""
         filled = [pairs for pairs in parts if len(pairs)]
@@ -142,6 +182,7 @@ class Grid:
         return np.concatenate(filled, out=self._pairs[:count])
 
     def _fill_dynamic(self, aabbs, n_static, n_dynamic, lattice, shift):
+        self._dynamic_lattice = lattice
         self._dynamic = build_table(self._dynamic, lattice, aabbs, self._order, n_dynamic,
                                     n_static, shift)
 

@@ -31,6 +31,8 @@ Rebuilding every tick costs a partition per tick for nothing while the tree is s
 refitting alone lets the tree decay (clustered: 50 % more pairs compared after 100 ticks);
 refit-then-rebuild-when-worse is at or below the better of the two everywhere.
 
+:meth:`KdTreePhase.validate` (for tests) checks both trees node by node (:func:`validate_tree`).
+
 When to use: scenes of mixed sizes where no cell size suits all boxes, and static scenes with
 few moving bodies (the static tree is built once). The grid is faster on uniform sizes.
 """
@@ -40,6 +42,8 @@ import numpy as np
 
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase.pair_buffer import emit_if, PairBuffer
+from collision_node.pipeline.broadphase.validation import (
+    check, check_contains, check_permutation, loose_mask)
 from collision_node.pipeline.obb import overlap_across
 
 LEAF_SIZE = 4           # boxes per leaf: fewer means deeper trees, more means more pair tests
@@ -115,10 +119,91 @@ class KdTreePhase:
         return self._buffer.fill(_tree_pairs, tree, self._static, aabbs, n_static,
                                  self._stack)
 
+    def validate(self, boxes, n_static, n_dynamic, loose=None):
+        """Check both trees against ``boxes``; raise InvalidStructure if wrong. For testing.
+
+        See :func:`validate_tree`. A dynamic tree made for other counts than ``n_static`` and
+        ``n_dynamic`` is checked on its own only: the next tick makes a new one.
+        """
+        loose = loose_mask(loose, n_static)
+        check(self._static is not None or n_static == 0,
+              'no static tree for %d static boxes: set_static was not called', n_static)
+        if self._static is not None:
+            check(len(self._static.perm) == n_static, 'static tree over %d boxes, the scene '
+                  'has %d', len(self._static.perm), n_static)
+            validate_tree(self._static, boxes.aabbs, np.arange(n_static), ~loose,
+                          'static tree')
+        if self._dynamic is not None:
+            first, count = self._dynamic_of
+            current = self._dynamic_of == (n_static, n_dynamic)
+            validate_tree(self._dynamic, boxes.aabbs, np.arange(first, first + count),
+                          np.full(count, current), 'dynamic tree')
+
     def _build(self, aabbs):
         build(self._dynamic, aabbs)
         self._built_area = self._dynamic.area[0]
         self.stats['builds'] += 1
+
+
+def validate_tree(tree, aabbs, rows, held, what):
+    """Check a built tree over ``rows``; raise InvalidStructure at the first break.
+
+    ``perm`` is a permutation of ``rows``; nodes exist exactly where the heap layout of
+    :func:`build` puts them (the root, and both children of every node split at its middle);
+    a split node has more than ``LEAF_SIZE`` boxes, a leaf at most that many (the node count
+    of :func:`tree_for` guarantees it); every node's AABB contains its children's and those
+    of its boxes that are ``held`` (bool per position of ``rows``: the boxes as they are in
+    ``aabbs``, i.e. not loose), and ``area`` is that of the node AABBs.
+    """
+    perm, node_start, node_end, bounds = tree.perm, tree.node_start, tree.node_end, \
+        tree.bounds
+    n = len(rows)
+    check_permutation(perm, rows, what + ' perm')
+    nodes = len(tree_for(rows).node_start)
+    check(len(node_start) == len(node_end) == len(bounds) == nodes,
+          '%s: %d node starts, %d ends, %d bounds; %d boxes need %d nodes', what,
+          len(node_start), len(node_end), len(bounds), n, nodes)
+    exists = np.zeros(nodes, np.bool_)
+    exists[0] = True
+    check(node_start[0] == 0 and node_end[0] == n, '%s: root owns [%d, %d), not [0, %d)',
+          what, node_start[0], node_end[0], n)
+    for node in range(nodes):  # parents before children: the children of split nodes exist
+        start, end = node_start[node], node_end[node]
+        left = 2 * node + 1
+        if not exists[node]:
+            check(end <= start, '%s: node %d does not exist but owns [%d, %d)', what, node,
+                  start, end)
+        elif left < nodes and node_end[left] > node_start[left]:
+            middle = (start + end) // 2
+            check(end - start > LEAF_SIZE, '%s: node %d of %d boxes is split', what, node,
+                  end - start)
+            check(node_start[left] == start and node_end[left] == middle
+                  and node_start[left + 1] == middle and node_end[left + 1] == end,
+                  '%s: node %d [%d, %d) has children [%d, %d) and [%d, %d)', what, node, start,
+                  end, node_start[left], node_end[left], node_start[left + 1],
+                  node_end[left + 1])
+            exists[left] = exists[left + 1] = True
+        else:
+            check(end - start <= LEAF_SIZE, '%s: leaf %d holds %d boxes, more than %d', what,
+                  node, end - start, LEAF_SIZE)
+    is_held = dict(zip(rows.tolist(), np.asarray(held, np.bool_).tolist()))
+    area = 0.0
+    for node in np.flatnonzero(exists & (node_end > node_start)):
+        area += _surface(bounds, node)
+        start, end = node_start[node], node_end[node]
+        left = 2 * node + 1
+        if left < nodes and exists[left]:
+            for child in (left, left + 1):
+                check_contains(bounds[node], bounds[child],
+                               '%s: node %d around child %d' % (what, node, child))
+        else:
+            boxes = np.array([row for row in perm[start:end] if is_held[row]], np.int64)
+            check_contains(np.broadcast_to(bounds[node], (len(boxes), 2, 3)), aabbs[boxes],
+                           '%s: leaf %d around its boxes %s' % (what, node, boxes.tolist()))
+    root = _surface(bounds, 0)
+    area = area / root if root > 0.0 else 1.0
+    check(np.isclose(tree.area[0], area, rtol=1e-9, atol=0.0),
+          '%s: area %r, its node AABBs give %r', what, float(tree.area[0]), float(area))
 
 
 @kernel
@@ -226,50 +311,48 @@ def _select(keys, perm, start, end, nth):
 
 @kernel
 def _tree_pairs(tree, static, aabbs, n_static, stack, out):
-    perm, node_start, node_end, bounds = tree.perm, tree.node_start, tree.node_end, \
-        tree.bounds
-    count = 0
-    compared = 0
-    for p in range(len(perm)):
-        a = perm[p]
-        count, tested = _query(aabbs, a, p + 1, perm, node_start, node_end, bounds, stack, out,
-                               count, True)
-        compared += tested
+    """Pairs among the dynamic tree's boxes, then of each of them with the static tree's."""
+    count, compared = _query(tree, tree.perm, aabbs, stack, out, 0, True)
     if n_static:
-        s_perm, s_start, s_end, s_bounds = static.perm, static.node_start, static.node_end, \
-            static.bounds
-        for p in range(len(perm)):
-            count, tested = _query(aabbs, perm[p], 0, s_perm, s_start, s_end, s_bounds, stack,
-                                   out, count, False)
-            compared += tested
+        count, tested = _query(static, tree.perm, aabbs, stack, out, count, False)
+        compared += tested
     return count, compared
 
 
 @kernel
-def _query(aabbs, a, first, perm, node_start, node_end, bounds, stack, out, count, dynamic):
-    """Pairs of box ``a`` with the tree's boxes at positions >= ``first``."""
-    compared = 0
-    stack[0] = 0
-    top = 1
+def _query(tree, queries, aabbs, stack, out, count, dynamic):
+    """Pairs of each box ``queries[p]`` with the boxes of ``tree``; return (count, compared).
+
+    ``dynamic``: ``queries`` is the tree's own ``perm`` and box ``queries[p]`` meets only the
+    boxes at positions after ``p``, so each pair is met once.
+    """
+    perm, node_start, node_end, bounds = tree.perm, tree.node_start, tree.node_end, \
+        tree.bounds
     n_nodes = len(node_start)
-    while top:
-        top -= 1
-        node = stack[top]
-        end = node_end[node]
-        if end <= first or not overlap_across(bounds, node, aabbs, a):
-            continue
-        left = 2 * node + 1
-        if left < n_nodes and node_end[left] > node_start[left]:
-            stack[top] = left
-            stack[top + 1] = left + 1
-            top += 2
-            continue
-        for q in range(max(node_start[node], first), end):
-            b = perm[q]
-            compared += 1
-            hit = overlap_across(aabbs, a, aabbs, b)
-            if dynamic:
-                count = emit_if(out, count, hit, min(a, b), max(a, b))
-            else:
-                count = emit_if(out, count, hit, a, b)
+    compared = 0
+    for p in range(len(queries)):
+        a = queries[p]
+        first = p + 1 if dynamic else 0
+        stack[0] = 0
+        top = 1
+        while top:
+            top -= 1
+            node = stack[top]
+            end = node_end[node]
+            if end <= first or not overlap_across(bounds, node, aabbs, a):
+                continue
+            left = 2 * node + 1
+            if left < n_nodes and node_end[left] > node_start[left]:
+                stack[top] = left
+                stack[top + 1] = left + 1
+                top += 2
+                continue
+            for q in range(max(node_start[node], first), end):
+                b = perm[q]
+                compared += 1
+                hit = overlap_across(aabbs, a, aabbs, b)
+                if dynamic:
+                    count = emit_if(out, count, hit, min(a, b), max(a, b))
+                else:
+                    count = emit_if(out, count, hit, a, b)
     return count, compared

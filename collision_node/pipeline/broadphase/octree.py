@@ -46,7 +46,8 @@ n^(1/3), so the best depth grows a third as fast as log2(n).
 Invariants: a leaf is in the map iff it holds a box or cools down; a dynamic box is in every
 leaf of its registered cell range, which contains its current one; the active list holds
 exactly the leaves that hold dynamic boxes or cool down. test_broadphase.py checks their
-consequence, brute force's pairs, over hundreds of ticks of bodies coming, going and moving.
+consequence, brute force's pairs, over hundreds of ticks of bodies coming, going and moving;
+:meth:`Octree.validate` (for tests) checks them and the bookkeeping behind them directly.
 
 When to use: as the paper's reference and where bodies stay in their leaves for many ticks
 (slow motion, many static boxes). The hashed grid does the same job without a root cube or
@@ -63,6 +64,9 @@ from collision_node.pipeline.broadphase.cells import (
     ALL_FIRST, cell_key, cell_range, first_cell_flags, keeps_cells, make_lattice,
     MAX_CELLS_PER_BODY, mean_side_and_center, pairs_with_all_dynamic, pairs_with_all_static)
 from collision_node.pipeline.broadphase.pair_buffer import emit, emit_if, PairBuffer
+from collision_node.pipeline.broadphase.validation import (
+    cell_counts, cell_of_key, cell_ranges, check, check_distinct, check_hash_map, loose_mask,
+    range_holds)
 from collision_node.pipeline.obb import aabbs_overlap, overlap_across
 
 NULL = -1  # no leaf, no entry
@@ -234,6 +238,21 @@ class Octree:
             big_dynamic=int(counters[BIG_DYNAMIC]))
         return pairs, compared
 
+    def validate(self, boxes, n_static, n_dynamic, loose=None):
+        """Check the whole tree against ``boxes``; raise InvalidStructure if wrong. For testing.
+
+        See :func:`validate_state`. Between set_static and the next tick there is no tree.
+        """
+        loose = loose_mask(loose, n_static)
+        if self._state is None:
+            return  # the next tick inserts every box as it is then
+        cells = 1 << self._depth
+        check(self._lattice.low == 0 and self._lattice.high == cells - 1,
+              'lattice clamps to cells %d..%d, the depth %d has 0..%d', self._lattice.low,
+              self._lattice.high, self._depth, cells - 1)
+        validate_state(self._state, self._lattice, boxes.aabbs, n_static, n_dynamic, loose,
+                       self._tick, self._cooldown)
+
     def _needs_build(self, aabbs, n_static, n_dynamic):
         if self._state is None or len(self._state.bodies) < n_dynamic:
             return True
@@ -324,8 +343,7 @@ def _build(state, lattice, aabbs, n_static, n_dynamic, tick):
         for x in range(static_range[s, 0, 0], static_range[s, 1, 0] + 1):
             for y in range(static_range[s, 0, 1], static_range[s, 1, 1] + 1):
                 for z in range(static_range[s, 0, 2], static_range[s, 1, 2] + 1):
-                    leaf = _find_or_create_leaf(leaves, free_leaves, counters, map_keys,
-                                                map_leaves, x, y, z)
+                    leaf = _find_or_create_leaf(state, x, y, z)
                     leaves[leaf, LEAF_STATIC_COUNT] += 1
     counters[BIG_STATIC] = big
     start = 0
@@ -354,10 +372,7 @@ def _update(state, lattice, aabbs, n_static, n_dynamic, tick, cooldown):
     When the free leaves or entries might not suffice, nothing is changed and the number of
     leaf references to insert is returned instead, for a rebuild with more room.
     """
-    leaves, free_leaves, active, counters = (state.leaves, state.free_leaves, state.active,
-                                             state.counters)
-    entries, free_entries, bodies = state.entries, state.free_entries, state.bodies
-    map_keys, map_leaves, moves = state.map_keys, state.map_leaves, state.moves
+    counters, bodies, moves = state.counters, state.bodies, state.moves
     body_range, new_range, big_rows = state.body_range, state.new_range, state.big_rows
     n_before = counters[DYNAMIC_COUNT]
     needed = 0
@@ -378,13 +393,13 @@ def _update(state, lattice, aabbs, n_static, n_dynamic, tick, cooldown):
         return needed
     for i in range(n_dynamic, n_before):  # bodies that are gone
         if bodies[i, BODY_STATE] == IN_LEAVES:
-            _remove_body(leaves, entries, free_entries, bodies, counters, i, tick)
+            _remove_body(state, i, tick)
         bodies[i, BODY_STATE] = OUTSIDE_TREE
     for i in range(n_dynamic):  # all removals first, so their entries can be reused
         if not moves[i]:
             counters[STAYED] += 1
         elif i < n_before and bodies[i, BODY_STATE] == IN_LEAVES:
-            _remove_body(leaves, entries, free_entries, bodies, counters, i, tick)
+            _remove_body(state, i, tick)
             counters[REINSERTED] += 1
         else:
             counters[INSERTED] += 1
@@ -396,15 +411,13 @@ def _update(state, lattice, aabbs, n_static, n_dynamic, tick, cooldown):
                 bodies[i, BODY_STATE] = BIG
             else:
                 bodies[i, BODY_STATE] = IN_LEAVES
-                _insert_body(leaves, free_leaves, active, entries, free_entries, bodies,
-                             body_range, counters, map_keys, map_leaves, i)
+                _insert_body(state, i)
         if bodies[i, BODY_STATE] == BIG:
             big_rows[big] = n_static + i
             big += 1
     counters[BIG_DYNAMIC] = big
     counters[DYNAMIC_COUNT] = n_dynamic
-    _drop_cooled_leaves(leaves, free_leaves, active, counters, map_keys, map_leaves, tick,
-                        cooldown)
+    _drop_cooled_leaves(state, tick, cooldown)
     return 0
 
 
@@ -426,7 +439,10 @@ def _cell_count(ranges, i):
 
 
 @kernel
-def _find_or_create_leaf(leaves, free_leaves, counters, map_keys, map_leaves, x, y, z):
+def _find_or_create_leaf(state, x, y, z):
+    """Return the leaf of cell (x, y, z), made (and mapped) if there is none."""
+    leaves, free_leaves, counters = state.leaves, state.free_leaves, state.counters
+    map_keys, map_leaves = state.map_keys, state.map_leaves
     key = cell_key(x, y, z)
     leaf = hash_map.find(map_keys, map_leaves, key)
     if leaf != NULL:
@@ -448,15 +464,16 @@ def _find_or_create_leaf(leaves, free_leaves, counters, map_keys, map_leaves, x,
 
 
 @kernel
-def _insert_body(leaves, free_leaves, active, entries, free_entries, bodies, body_range,
-                 counters, map_keys, map_leaves, i):
+def _insert_body(state, i):
     """Enter dynamic box ``i`` in every leaf of its registered range."""
+    leaves, active, counters = state.leaves, state.active, state.counters
+    entries, free_entries, bodies = state.entries, state.free_entries, state.bodies
+    body_range = state.body_range
     bodies[i, BODY_FIRST_ENTRY] = NULL
     for x in range(body_range[i, 0, 0], body_range[i, 1, 0] + 1):
         for y in range(body_range[i, 0, 1], body_range[i, 1, 1] + 1):
             for z in range(body_range[i, 0, 2], body_range[i, 1, 2] + 1):
-                leaf = _find_or_create_leaf(leaves, free_leaves, counters, map_keys,
-                                            map_leaves, x, y, z)
+                leaf = _find_or_create_leaf(state, x, y, z)
                 counters[FREE_ENTRIES] -= 1
                 e = free_entries[counters[FREE_ENTRIES]]
                 entries[e, ENTRY_BODY] = i
@@ -477,8 +494,11 @@ def _insert_body(leaves, free_leaves, active, entries, free_entries, bodies, bod
 
 
 @kernel
-def _remove_body(leaves, entries, free_entries, bodies, counters, i, tick):
+def _remove_body(state, i, tick):
     """Unlink dynamic box ``i`` from all its leaves; a leaf it empties starts cooling."""
+    leaves, entries, free_entries, bodies, counters = (state.leaves, state.entries,
+                                                       state.free_entries, state.bodies,
+                                                       state.counters)
     e = bodies[i, BODY_FIRST_ENTRY]
     while e != NULL:
         leaf = entries[e, ENTRY_LEAF]
@@ -500,9 +520,11 @@ def _remove_body(leaves, entries, free_entries, bodies, counters, i, tick):
 
 
 @kernel
-def _drop_cooled_leaves(leaves, free_leaves, active, counters, map_keys, map_leaves, tick,
-                        cooldown):
+def _drop_cooled_leaves(state, tick, cooldown):
     """Take leaves empty for ``cooldown`` ticks off the active list; drop non-static ones."""
+    leaves, free_leaves, active, counters = (state.leaves, state.free_leaves, state.active,
+                                             state.counters)
+    map_keys, map_leaves = state.map_keys, state.map_leaves
     k = 0
     while k < counters[ACTIVE]:
         leaf = active[k]
@@ -579,3 +601,195 @@ def _leaf_pairs(state, aabbs, n_static, n_total, out):
                 if aabbs_overlap(aabbs, a, s):
                     count = emit(out, count, a, s, n_static)
     return count, compared
+
+
+def validate_state(state, lattice, aabbs, n_static, n_dynamic, loose, tick, cooldown):
+    """Check every invariant of the module docstring; raise InvalidStructure at the first break.
+
+    ``aabbs``: static rows as of the last build or move_static, dynamic rows as of the last
+    tick (the tree's ``n_dynamic`` boxes); ``loose`` (bool per static row) marks the static
+    boxes move_static did not keep, which the tree still holds where they were. ``tick`` is
+    that of the last update, ``cooldown`` the leaves' cooling time in ticks.
+    """
+    leaves, entries, bodies, counters = state.leaves, state.entries, state.bodies, \
+        state.counters
+    n_leaves, n_entries = len(leaves), len(entries)
+    check(0 <= counters[FREE_LEAVES] <= n_leaves and 0 <= counters[FREE_ENTRIES] <= n_entries
+          and 0 <= counters[ACTIVE] <= n_leaves, 'counters out of range: %s', counters.tolist())
+    check(counters[DYNAMIC_COUNT] == n_dynamic <= len(bodies),
+          'the tree holds %d dynamic boxes (room for %d), the scene has %d',
+          counters[DYNAMIC_COUNT], len(bodies), n_dynamic)
+    check(len(state.static_range) == max(n_static, 1),
+          'the tree was built for %d static boxes, the scene has %d', len(state.static_range),
+          n_static)
+    used = _validate_leaves(state, lattice, tick, cooldown)
+    _validate_static(state, lattice, aabbs, n_static, loose, used)
+    _validate_dynamic(state, lattice, aabbs, n_static, n_dynamic, used)
+
+
+def _validate_leaves(state, lattice, tick, cooldown):
+    """Check that free stack, map and active list agree; return the leaves in use (bool each)."""
+    leaves, counters, active = state.leaves, state.counters, state.active
+    free = state.free_leaves[:counters[FREE_LEAVES]]
+    check(np.all((free >= 0) & (free < len(leaves))), 'free leaf stack holds a non-leaf')
+    check_distinct(free, 'free leaf stack')
+    used = np.ones(len(leaves), np.bool_)
+    used[free] = False
+    in_map = check_hash_map(state.map_keys, state.map_leaves, 'leaf map')
+    check(len(state.map_keys) >= 2 * len(leaves), 'leaf map of %d slots for %d leaves: load '
+          'above 1/2', len(state.map_keys), len(leaves))
+    mapped, in_use = set(in_map.values()), set(np.flatnonzero(used).tolist())
+    check(mapped == in_use, 'leaf map and free stack disagree: leaves %s in use but not in the '
+          'map, leaves %s in the map but free', sorted(in_use - mapped)[:10],
+          sorted(mapped - in_use)[:10])
+    for key, leaf in in_map.items():
+        cell = _cell(leaves, leaf)
+        check(cell_of_key(key) == cell, 'leaf %d of cell %s is mapped from cell %s', leaf, cell,
+              cell_of_key(key))
+        check(all(lattice.low <= c <= lattice.high for c in cell),
+              'leaf %d of cell %s lies outside the lattice %d..%d', leaf, cell, lattice.low,
+              lattice.high)
+    listed = active[:counters[ACTIVE]]
+    check(np.all(used[listed]), 'active list holds a free leaf')
+    check_distinct(listed, 'active list')
+    slots = leaves[:, LEAF_ACTIVE_SLOT]
+    for k, leaf in enumerate(listed):
+        check(slots[leaf] == k, 'leaf %d is at slot %d of the active list, it says %d', leaf, k,
+              slots[leaf])
+    check(np.count_nonzero(used & (slots != NULL)) == len(listed),
+          'leaves with an active slot: %d, on the active list: %d',
+          np.count_nonzero(used & (slots != NULL)), len(listed))
+    for leaf in np.flatnonzero(used):
+        dynamic, since = leaves[leaf, LEAF_DYNAMIC], leaves[leaf, LEAF_EMPTY_SINCE]
+        is_active = slots[leaf] != NULL
+        check(dynamic > 0 or leaves[leaf, LEAF_STATIC_COUNT] > 0 or is_active,
+              'leaf %d holds nothing and is not cooling down, yet is not dropped', leaf)
+        if dynamic > 0:
+            check(is_active and since == NULL, 'leaf %d holds %d dynamic boxes but is %s',
+                  leaf, dynamic, 'empty since tick %d' % since if is_active else 'not active')
+        elif is_active:
+            check(since != NULL and 0 <= tick - since < cooldown,
+                  'leaf %d cools down since tick %d: out of the cooldown (%d ticks at tick %d)',
+                  leaf, since, cooldown, tick)
+    return used
+
+
+def _cell(leaves, leaf):
+    return tuple(int(c) for c in leaves[leaf, LEAF_X:LEAF_Z + 1])
+
+
+def _validate_static(state, lattice, aabbs, n_static, loose, used):
+    """Check that each small static box is in exactly the leaves of its range, big ones listed."""
+    leaves, static_range, counters = state.leaves, state.static_range[:n_static], \
+        state.counters
+    kept = np.flatnonzero(~loose)
+    now = cell_ranges(lattice, aabbs, kept)
+    stale = np.flatnonzero(np.any(now != static_range[kept], axis=(1, 2)))
+    check(not len(stale), 'static box %d is held in cells %s, its box now covers %s (moved '
+          'without move_static, or kept by it though it left its cells)',
+          kept[stale[0]] if len(stale) else -1,
+          static_range[kept[stale[0]]].tolist() if len(stale) else None,
+          now[stale[0]].tolist() if len(stale) else None)
+    counts = cell_counts(static_range)
+    big = counts > MAX_CELLS_PER_BODY
+    listed = state.static_big[:counters[BIG_STATIC]]
+    check(listed.tolist() == np.flatnonzero(big).tolist(),
+          'big static list %s, static boxes over %d cells %s', listed.tolist()[:20],
+          MAX_CELLS_PER_BODY, np.flatnonzero(big)[:20].tolist())
+    seen = np.zeros(n_static, np.int64)
+    spans = []
+    for leaf in np.flatnonzero(used & (leaves[:, LEAF_STATIC_COUNT] != 0)):
+        start, count = leaves[leaf, LEAF_STATIC_START], leaves[leaf, LEAF_STATIC_COUNT]
+        check(count > 0 and start >= 0 and start + count <= len(state.static_members),
+              'leaf %d: static boxes [%d, %d) outside the member array (%d)', leaf, start,
+              start + count, len(state.static_members))
+        spans.append((start, start + count))
+        members = state.static_members[start:start + count]
+        check(np.all((members >= 0) & (members < n_static)),
+              'leaf %d lists static rows %s, the scene has %d', leaf, members.tolist(), n_static)
+        check_distinct(members, 'static boxes of leaf %d' % leaf)
+        cell = _cell(leaves, leaf)
+        for s in members:
+            check(not big[s] and range_holds(static_range, s, cell),
+                  'leaf %d of cell %s lists static box %d of cells %s%s', leaf, cell, s,
+                  static_range[s].tolist(), ' (big)' if big[s] else '')
+            seen[s] += 1
+    spans.sort()
+    for (_, end), (start, _) in zip(spans, spans[1:]):
+        check(end <= start, 'static member ranges of two leaves overlap at %d', start)
+    small = ~big
+    wrong = np.flatnonzero(seen[small] != counts[small])
+    check(not len(wrong), 'static box %d is in %d leaves, its range has %d cells',
+          np.flatnonzero(small)[wrong[0]] if len(wrong) else -1,
+          seen[small][wrong[0]] if len(wrong) else 0, counts[small][wrong[0]] if len(wrong) else 0)
+
+
+def _validate_dynamic(state, lattice, aabbs, n_static, n_dynamic, used):
+    """Check that each dynamic box is in exactly the leaves of its range, which holds its AABB."""
+    leaves, entries, bodies, body_range = state.leaves, state.entries, state.bodies, \
+        state.body_range
+    counters = state.counters
+    n_entries = len(entries)
+    free = state.free_entries[:counters[FREE_ENTRIES]]
+    check(np.all((free >= 0) & (free < n_entries)), 'free entry stack holds a non-entry')
+    check_distinct(free, 'free entry stack')
+    owner = np.full(n_entries, NULL, np.int64)  # leaf whose list holds the entry
+    owner[free] = -2
+    for leaf in np.flatnonzero(used):
+        e, previous, length = leaves[leaf, LEAF_HEAD], NULL, 0
+        while e != NULL:
+            check(0 <= e < n_entries and owner[e] == NULL,
+                  'leaf %d lists entry %d, which is free, invalid or in another list', leaf, e)
+            check(entries[e, ENTRY_LEAF] == leaf and entries[e, ENTRY_PREV] == previous,
+                  'entry %d in the list of leaf %d names leaf %d and previous %d, not %d', e,
+                  leaf, entries[e, ENTRY_LEAF], entries[e, ENTRY_PREV], previous)
+            owner[e] = leaf
+            previous, e, length = e, entries[e, ENTRY_NEXT], length + 1
+        check(length == leaves[leaf, LEAF_DYNAMIC], 'leaf %d lists %d dynamic boxes, counts %d',
+              leaf, length, leaves[leaf, LEAF_DYNAMIC])
+    orphans = np.flatnonzero(owner == NULL)
+    check(not len(orphans), 'entry %d is neither free nor in a leaf', orphans[0]
+          if len(orphans) else -1)
+    states = bodies[:, BODY_STATE]
+    gone = np.flatnonzero((states[n_dynamic:] != OUTSIDE_TREE)
+                          | (bodies[n_dynamic:, BODY_FIRST_ENTRY] != NULL))
+    check(not len(gone), 'dynamic box %d is gone but still in the tree',
+          n_dynamic + gone[0] if len(gone) else -1)
+    now = cell_ranges(lattice, aabbs, np.arange(n_static, n_static + n_dynamic))
+    in_body_list = np.zeros(n_entries, np.bool_)
+    for i in range(n_dynamic):
+        registered = body_range[i]
+        if states[i] == BIG:
+            check(bodies[i, BODY_FIRST_ENTRY] == NULL and np.array_equal(registered, now[i])
+                  and cell_counts(registered[None])[0] > MAX_CELLS_PER_BODY,
+                  'big dynamic box %d: range %s, box now in %s, first entry %d', i,
+                  registered.tolist(), now[i].tolist(), bodies[i, BODY_FIRST_ENTRY])
+            continue
+        check(states[i] == IN_LEAVES, 'dynamic box %d is not in the tree (state %d)', i,
+              states[i])
+        check(np.all(registered[0] <= now[i, 0]) and np.all(now[i, 1] <= registered[1]),
+              'dynamic box %d is registered in cells %s, its box now covers %s', i,
+              registered.tolist(), now[i].tolist())
+        cells = cell_counts(registered[None])[0]
+        check(cells <= MAX_CELLS_PER_BODY, 'dynamic box %d in leaves spans %d cells', i, cells)
+        e, found = bodies[i, BODY_FIRST_ENTRY], set()
+        while e != NULL and len(found) <= cells:
+            check(0 <= e < n_entries and owner[e] >= 0 and not in_body_list[e]
+                  and entries[e, ENTRY_BODY] == i,
+                  'dynamic box %d lists entry %d, which is free, invalid or not its own', i, e)
+            in_body_list[e] = True
+            cell = _cell(leaves, entries[e, ENTRY_LEAF])
+            check(range_holds(body_range, i, cell) and cell not in found,
+                  'dynamic box %d (cells %s) is in the leaf of cell %s%s', i,
+                  registered.tolist(), cell, ' twice' if cell in found else '')
+            found.add(cell)
+            e = entries[e, ENTRY_BODY_NEXT]
+        check(len(found) == cells, 'dynamic box %d is in %d leaves, its range has %d cells', i,
+              len(found), cells)
+    strays = np.flatnonzero((owner >= 0) & ~in_body_list)
+    check(not len(strays), "entry %d (box %d) is in a leaf but not in its box's list",
+          strays[0] if len(strays) else -1, entries[strays[0], ENTRY_BODY] if len(strays) else -1)
+    big_rows = state.big_rows[:counters[BIG_DYNAMIC]]
+    expected = n_static + np.flatnonzero(states[:n_dynamic] == BIG)
+    check(big_rows.tolist() == expected.tolist(), 'big dynamic rows %s, big boxes at rows %s',
+          big_rows.tolist()[:20], expected.tolist()[:20])

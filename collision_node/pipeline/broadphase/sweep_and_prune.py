@@ -17,6 +17,7 @@ Coherence: between ticks boxes move little, so last tick's order is nearly sorte
 insertion sort repairs it in about O(n + moves). When it needs more than
 ``MAX_SWAPS_PER_BODY`` swaps per box (the order changed too much, e.g. bodies came or went, or
 the axis changed) it gives up and a full sort (O(n log n)) runs instead.
+:meth:`SweepAndPrune.validate` (for tests) checks that every list is sorted and complete.
 
 When to use: bodies spread along one axis (a corridor, a conveyor), few bodies, or as a
 robust fallback: it needs no cell size and no domain. It degrades in dense 3-D scenes where
@@ -26,6 +27,7 @@ import numpy as np
 
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase.pair_buffer import emit_if, PairBuffer
+from collision_node.pipeline.broadphase.validation import check, check_permutation, loose_mask
 from collision_node.pipeline.obb import overlap_across
 
 AXIS_SWITCH_RATIO = 1.25   # another axis must spread this many times more to take over
@@ -98,6 +100,65 @@ class SweepAndPrune:
         _gather(aabbs, self._order, self._sorted)
         return self._buffer.fill(_sweep, self._sorted, self._order, self._static_sorted[axis],
                                  self._static_orders[axis], n_static, axis)
+
+    def validate(self, boxes, n_static, n_dynamic, loose=None):
+        """Check the sorted lists against ``boxes``; raise InvalidStructure if wrong. For testing.
+
+        Each static list (one per axis) holds every static row once, its AABB copies are the
+        rows' boxes (loose rows excepted: the copies keep where they were) and are sorted by
+        the lower bound on that axis; the dynamic list holds every dynamic row once, sorted on
+        the sweep axis, its copies the boxes of the last tick. A dynamic list made for other
+        counts than ``n_static`` and ``n_dynamic`` is checked on its own only: the next tick
+        sorts a new one.
+        """
+        loose = loose_mask(loose, n_static)
+        aabbs = boxes.aabbs
+        orders, copies = self._static_orders, self._static_sorted
+        check(orders.shape == (3, n_static) and copies.shape == (3, n_static, 2, 3),
+              'static lists of shape %s (copies %s) for %d static boxes', orders.shape,
+              copies.shape, n_static)
+        for k in range(3):
+            what = 'static list of axis %d' % k
+            check_permutation(orders[k], np.arange(n_static), what)
+            _check_sorted(copies[k], k, what)
+            held = ~loose[orders[k]]
+            stale = np.flatnonzero(np.any(copies[k][held] != aabbs[orders[k][held]],
+                                          axis=(1, 2)))
+            check(not len(stale), '%s: the copy of static box %d is not its box', what,
+                  orders[k][held][stale[0]] if len(stale) else -1)
+        in_rows = np.empty_like(copies[0])
+        in_rows[orders[0]] = copies[0]  # the copies in row order, as _copy_static read them
+        centers = in_rows[:, 0] + in_rows[:, 1]
+        moments = np.stack([centers.sum(axis=0), (centers ** 2).sum(axis=0)])
+        check(np.allclose(self._static_moments, moments, rtol=1e-12, atol=0.0),
+              'static moments %s, the copies give %s', self._static_moments.tolist(),
+              moments.tolist())
+        if self._order_of is None:
+            return  # no tick yet
+        first, count = self._order_of
+        axis = self._axis
+        check(0 <= axis < 3 and self.stats['axis'] == axis, 'sweep axis %d (stats: %s)', axis,
+              self.stats['axis'])
+        check(len(self._keys) == len(self._sorted) == count, 'dynamic list of %d rows with %d '
+              'keys and %d copies', count, len(self._keys), len(self._sorted))
+        check_permutation(self._order, np.arange(first, first + count), 'dynamic list')
+        _check_sorted(self._sorted, axis, 'dynamic list')
+        check(np.array_equal(self._keys, self._sorted[:, 0, axis]),
+              'dynamic list: keys are not the lower bounds of its copies')
+        if self._order_of == (n_static, n_dynamic):
+            stale = np.flatnonzero(np.any(self._sorted != aabbs[self._order], axis=(1, 2)))
+            check(not len(stale), 'dynamic list: the copy of box %d is not its box',
+                  self._order[stale[0]] if len(stale) else -1)
+
+
+def _check_sorted(copies, axis, what):
+    """Check that AABB ``copies`` are in order of their lower bound on ``axis``."""
+    low = copies[:, 0, axis]
+    unsorted = np.flatnonzero(low[1:] < low[:-1])
+    check(not len(unsorted), '%s: not sorted by the lower bound on axis %d at position %d '
+          '(%r after %r)', what, axis, unsorted[0] + 1 if len(unsorted) else -1,
+          float(low[unsorted[0] + 1]) if len(unsorted) else None,
+          float(low[unsorted[0]]) if len(unsorted) else None)
 
 
 @kernel
