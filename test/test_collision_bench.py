@@ -296,7 +296,9 @@ def test_robot_section_times_every_method_and_compares_its_answers(tiny_run):
     if hasattr(World, 'check_states'):
         batch = rows[robot.OURS_BATCH]
         assert batch['states_per_call'] == plan.robot_batch_states
-        assert batch['compared_states'] == plan.robot_batch_states and batch['same_answers']
+        assert batch['compared_states'] == batch['states'] == (plan.robot_batch_states
+                                                               * plan.robot_rounds)
+        assert batch['same_answers']
     else:
         assert rows[robot.OURS_BATCH]['skipped'] == robot.CHECK_STATES_MISSING
     for name, hint in PEERS.items():

@@ -106,7 +106,7 @@ PLANS = {
         margin_sizes=((1000, 200), (10000, 100)),
         continuous_sizes=((1000, 200), (10000, 100)),
         static_move_sizes=((10000, 200), (100000, 20)),
-        robot_states=400, robot_batch_states=4000, robot_rounds=20,
+        robot_states=400, robot_batch_states=4000, robot_rounds=40,
         budget_s=120.0, max_tick_s=5.0),
     'quick': Plan(
         flying_out_sizes=(128, 256, 512, 1024), flying_out_ticks=60, flying_out_dt=5.0 / 60,
@@ -124,7 +124,7 @@ PLANS = {
         margin_sizes=((1000, 100), (10000, 40)),
         continuous_sizes=((1000, 100), (10000, 40)),
         static_move_sizes=((10000, 100),),
-        robot_states=400, robot_batch_states=4000, robot_rounds=10,
+        robot_states=400, robot_batch_states=4000, robot_rounds=20,
         budget_s=3.0, max_tick_s=1.0),
     # For the tests: every section on small scenes, in seconds.
     'tiny': Plan(

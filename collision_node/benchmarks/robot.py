@@ -237,8 +237,8 @@ class OursStep(Method):
 class OursBatch(Method):
     batch = True
     name = OURS_BATCH
-    setup = ('the same World, `World.check_states(states, half_extents)` on K states in one '
-             'call; per state = the call / K')
+    setup = ('a World set up alike, `World.check_states(states, half_extents)` on K states in '
+             'one call; per state = the call / K')
 
     def __init__(self):
         if not hasattr(World, 'check_states'):
@@ -485,8 +485,7 @@ def robot_rows(states_per_round, batch_states, rounds, progress=print):
     running = [method for method in made if isinstance(method, Method)]
     seconds = {method.name: [] for method in running}
     answers = {method.name: [] for method in running}
-    compared_states = []
-    batch_compared = None
+    compared_states, batch_compared = [], []
     for round_index in range(rounds):
         offset = round_index / rounds
         states = arm_states(states_per_round, offset)
@@ -502,9 +501,8 @@ def robot_rows(states_per_round, batch_states, rounds, progress=print):
                     before = time.perf_counter()
                     raw = method.call(batch)
                     seconds[method.name].append((time.perf_counter() - before) / batch_states)
-                    if round_index == 0:
-                        answers[method.name] = method.answers(raw, batch_states)
-                        batch_compared = batch
+                    answers[method.name].extend(method.answers(raw, batch_states))
+                    batch_compared.append(batch)
                     continue
                 inputs = method.inputs(states)
                 if round_index == 0:
@@ -526,9 +524,9 @@ def robot_rows(states_per_round, batch_states, rounds, progress=print):
                'mean_us': float(np.mean(taken)),
                'pairs_per_state': float(np.mean([len(s) for s in answers[method.name]]))}
         if method.batch:
-            row.update(states_per_call=batch_states, states=batch_states * rounds)
-            reference = _step_answers(batch_compared)
-            row.update(compare(batch_compared, reference, answers[method.name]))
+            row.update(states_per_call=batch_states, states=batch_states * len(taken))
+            batches = np.concatenate(batch_compared)
+            row.update(compare(batches, _step_answers(batches), answers[method.name]))
         else:
             row.update(states_per_call=1, states=len(taken))
             if ours is not None and method.name != OURS_STEP:
