@@ -16,7 +16,7 @@ setup(
     install_requires=['setuptools', 'numpy', 'numba'],
     extras_require={
         'test': ['pytest', 'hypothesis', 'python-fcl', 'coal'],
-        'bench': ['python-fcl', 'matplotlib'],
+        'bench': ['python-fcl', 'coal', 'mujoco', 'matplotlib'],  # robot section: coal, mujoco
     },
     zip_safe=False,
     maintainer='collision_node maintainers',

@@ -2,19 +2,21 @@
 import itertools
 import json
 import pathlib
+import sys
 
 import numpy as np
 import pytest
+from rclpy.parameter import parameter_dict_from_yaml_file, parameter_value_to_python
 
 from collision_node.benchmarks import collision_bench as bench
-from collision_node.benchmarks import report
+from collision_node.benchmarks import report, robot
 from collision_node.benchmarks.accuracy import (
     AABBS_ONLY, BROAD_ONLY, CLASSIC, contact_keys, MODES, pair_errors, pair_keys, SAT_FLOAT32,
     SAT_FLOAT64, SPHERES_ONLY)
 from collision_node.benchmarks.runs import all_pairs
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import make_scene
-from collision_node.pipeline.world import CONTACT_DTYPE, DYNAMIC, STATIC
+from collision_node.pipeline.world import CONTACT_DTYPE, DYNAMIC, Result, STATIC, World
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 
@@ -200,7 +202,7 @@ def test_python_fcl_finds_the_same_pairs(tiny_run):
 
 def test_every_target_is_listed(tiny_run):
     _, _, results = tiny_run
-    assert len(results['targets']) == 9
+    assert len(results['targets']) == 11
     for target in results['targets']:
         assert target['passed'] in (True, False, None)
 
@@ -274,3 +276,144 @@ def test_static_moves_section_times_every_configuration(tiny_run):
     assert all(row['median_ms'] > 0 and row['ticks'] == rows[0]['ticks'] for row in rows)
     # The same scene: the statics given as dynamic bodies add their pairs with each other.
     assert rows[-1]['colliding_pairs'] >= rows[0]['colliding_pairs'] > 0
+
+
+# --- the robot section ---------------------------------------------------------------------
+
+PEERS = {robot.FCL: robot.FCL_HINT, robot.COAL: robot.COAL_HINT,
+         robot.MUJOCO_MESH: robot.MUJOCO_HINT, robot.MUJOCO_BOX: robot.MUJOCO_HINT}
+
+
+def test_robot_section_times_every_method_and_compares_its_answers(tiny_run):
+    _, output, results = tiny_run
+    rows = {row['method']: row for row in results['robot']}
+    assert list(rows) == [robot.OURS_STEP, robot.OURS_BATCH, robot.FCL, robot.COAL,
+                          robot.MUJOCO_MESH, robot.MUJOCO_BOX]
+    plan = bench.PLANS['tiny']
+    ours = rows[robot.OURS_STEP]
+    assert ours['states'] == plan.robot_states * plan.robot_rounds
+    assert ours['per_state_us'] > 0 and ours['pairs_per_state'] > 0
+    if hasattr(World, 'check_states'):
+        batch = rows[robot.OURS_BATCH]
+        assert batch['states_per_call'] == plan.robot_batch_states
+        assert batch['compared_states'] == batch['states'] == (plan.robot_batch_states
+                                                               * plan.robot_rounds)
+        assert batch['same_answers']
+    else:
+        assert rows[robot.OURS_BATCH]['skipped'] == robot.CHECK_STATES_MISSING
+    for name, hint in PEERS.items():
+        row = rows[name]
+        if 'skipped' in row:
+            assert row['skipped'] == hint
+            continue
+        assert row['compared_states'] == row['states'] == ours['states']
+        assert row['states_differing'] == 0 or not row['same_answers']
+        assert row['vs_mujoco'] > 0
+        if name != robot.MUJOCO_BOX:  # MuJoCo's box-box collider approximates near pairs
+            assert row['same_answers'] or row['boundary_only'], row
+    markdown = (output / 'results.md').read_text()
+    assert '## Robot arm' in markdown
+    assert sum(row.get('mujoco_reference', False) for row in rows.values()) <= 1
+
+
+def test_robot_section_skips_each_peer_not_installed(monkeypatch):
+    for module in ('fcl', 'coal', 'mujoco'):
+        monkeypatch.setitem(sys.modules, module, None)  # import raises ImportError
+    rows = robot.robot_rows(3, 5, 1, progress=lambda message: None)
+    by_method = {row['method']: row for row in rows}
+    for name, hint in PEERS.items():
+        assert by_method[name] == {'method': name, 'skipped': hint}
+    assert 'vs_mujoco' not in by_method[robot.OURS_STEP]
+    assert by_method[robot.OURS_STEP]['per_state_us'] > 0
+    for target in report.robot_targets(rows):
+        assert target['passed'] is None
+        assert target['measured'] == 'not measured: ' + robot.MUJOCO_HINT
+    settings = bench.PLANS['tiny']._asdict()
+    assert robot.MUJOCO_HINT in '\n'.join(report._robot_markdown(rows, settings))
+
+
+def _check_states_by_steps(drop_first=False):
+    """Return a World.check_states keeping the contract by calling step (for these tests)."""
+    dtype = np.dtype(CONTACT_DTYPE.descr + [('state', np.uint32)])
+
+    def check_states(world, states, half_extents):
+        parts = []
+        for state, poses in enumerate(states):
+            contacts = world.step(poses, half_extents).contacts[1 if drop_first else 0:]
+            part = np.zeros(len(contacts), dtype)
+            for name in CONTACT_DTYPE.names:
+                part[name] = contacts[name]
+            part['state'] = state
+            parts.append(part)
+        return Result(np.concatenate(parts), {})
+    return check_states
+
+
+@pytest.mark.parametrize('drop_first', [False, True])
+def test_robot_section_compares_check_states_state_by_state(monkeypatch, drop_first):
+    monkeypatch.setattr(World, 'check_states', _check_states_by_steps(drop_first),
+                        raising=False)
+    rows = {row['method']: row for row in robot.robot_rows(3, 40, 1,
+                                                           progress=lambda message: None)}
+    batch = rows[robot.OURS_BATCH]
+    assert batch['states_per_call'] == batch['compared_states'] == 40
+    assert batch['per_state_us'] > 0
+    if drop_first:  # a pair missing is a difference, and not one on the margin's boundary
+        assert batch['states_differing'] > 0 and batch['only_ours'] > 0
+        assert batch['only_peer'] == 0 and not batch['same_answers']
+        assert not batch['boundary_only']
+    else:
+        assert batch['same_answers'] and batch['states_differing'] == 0
+
+
+def test_robot_differences_on_the_margin_are_told_apart():
+    poses = robot.arm_states(1)[0]
+    near = poses.copy()
+    # The flange (half height 0.02 m) level, 0.05 m + 1e-7 above the floor's top (z = 0).
+    near[6] = [1.2, 1.2, 0.02 + robot.ARM_MARGIN + 1e-7, 0.0, 0.0, 0.0, 1.0]
+    floor_pair = (6, STATIC, robot.STATIC_NAMES.index('floor'))
+    found = robot.compare([near], [set()], [{floor_pair}])
+    assert found['states_differing'] == 1 and found['only_peer'] == 1
+    assert found['boundary_only'] and found['worst_gap_m'] == pytest.approx(1e-7, abs=1e-9)
+    far = near.copy()
+    far[6, 2] += 0.5
+    found = robot.compare([far], [{floor_pair}], [set()])
+    assert not found['boundary_only'] and found['worst_gap_m'] == pytest.approx(0.5, abs=1e-6)
+    assert robot.compare([near], [{floor_pair}], [{floor_pair}])['same_answers']
+
+
+def test_robot_targets_are_judged_on_the_measured_numbers():
+    mujoco = {'method': robot.MUJOCO_MESH, 'per_state_us': 10.0, 'mujoco_reference': True}
+    rows = [{'method': robot.OURS_STEP, 'per_state_us': 6.0, 'states_per_call': 1},
+            {'method': robot.OURS_BATCH, 'per_state_us': 2.0, 'states_per_call': 4000},
+            mujoco]
+    step, batch = report.robot_targets(rows)
+    assert (step['passed'], batch['passed']) == (True, False)
+    assert step['measured'].startswith('0.6x')
+    rows[1]['states_per_call'] = 50
+    assert report.robot_targets(rows)[1]['passed'] is None
+    assert [target['passed'] for target in report.robot_targets(None)] == [None, None]
+
+
+def test_robot_world_is_set_up_as_config_arm_yaml():
+    parameters = {name: parameter_value_to_python(parameter.value) for name, parameter in
+                  parameter_dict_from_yaml_file(str(REPO / 'config' / 'arm.yaml')).items()}
+    assert parameters['broad_phase'] == robot.ARM_BROAD_PHASE
+    assert parameters['margin'] == robot.ARM_MARGIN
+    assert tuple(parameters['ignored_pairs']) == robot.ARM_IGNORED_PAIRS
+    assert tuple(parameters['static_colliders']) == robot.STATIC_NAMES
+    for name in robot.STATIC_NAMES:
+        assert parameters.get(name + '.margin', 0.0) == robot.ARM_COLLIDER_MARGINS[name]
+    assert len(robot.allowed_pairs()) == 21 + 21 - len(robot.ARM_IGNORED_PAIRS)
+
+
+def test_robot_mujoco_model_gives_each_pair_the_worlds_margin():
+    mujoco = pytest.importorskip('mujoco')
+    for meshes in (True, False):
+        model, bodies = robot.mujoco_model(mujoco, meshes)
+        geom = {body: geom_id for geom_id, body in bodies.items()}
+        for id_a, type_b, id_b in robot.allowed_pairs():
+            margins = model.geom_margin[[geom[(DYNAMIC, id_a)], geom[(type_b, id_b)]]]
+            assert margins.sum() == pytest.approx(robot.pair_margin((id_a, type_b, id_b)),
+                                                  abs=1e-15)
+        assert model.nexclude == len(robot.ARM_IGNORED_PAIRS)

@@ -16,7 +16,8 @@ PACKAGE = 'collision_node'
 ROSDEP_KEYS = {'numpy': 'python3-numpy', 'numba': 'python3-numba', 'pytest': 'python3-pytest',
                'hypothesis': 'python3-hypothesis'}
 # Imports without a rosdep key, declared as pip extras in setup.py instead: pip names.
-PIP_NAMES = {'fcl': 'python-fcl', 'matplotlib': 'matplotlib', 'coal': 'coal'}
+PIP_NAMES = {'fcl': 'python-fcl', 'matplotlib': 'matplotlib', 'coal': 'coal',
+             'mujoco': 'mujoco'}
 
 
 @pytest.fixture(scope='module')

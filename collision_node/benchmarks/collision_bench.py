@@ -5,10 +5,12 @@
 
 Writes OUTPUT/results.json (every number), OUTPUT/results.md (the tables, the performance
 targets with pass/fail, the command that reproduces them) and OUTPUT/time_vs_error.png.
-python-fcl and matplotlib are optional (the ``bench`` extra): without them the fcl table and
-the plot are left out and say why. Scenes come from :mod:`collision_node.pipeline.scenes`, seeded.
+python-fcl, coal, MuJoCo and matplotlib are optional (the ``bench`` extra, benchmark-only):
+without them the fcl table, the robot section's peers and the plot are left out and say why.
+Scenes come from :mod:`collision_node.pipeline.scenes`, seeded.
 """
 import argparse
+from importlib import metadata
 import math
 import os
 import platform
@@ -23,6 +25,7 @@ import numpy as np
 from collision_node.benchmarks import report
 from collision_node.benchmarks.accuracy import accuracy_rows
 from collision_node.benchmarks.fcl_reference import compare_with_fcl, fcl_available, INSTALL_HINT
+from collision_node.benchmarks.robot import robot_rows
 from collision_node.benchmarks.runs import (
     Limits, run_all_pairs_sat, run_world, WARM_UP_BODIES, WARM_UP_TICKS, warmed)
 from collision_node.benchmarks.stages import profile_stages
@@ -35,7 +38,7 @@ OCTREE_DEPTHS = tuple(range(1, 10))  # Table 1 of "Discrete Collision Algorithms
 PAPER000_OCTREE_DEPTH = 4            # the octree of "Engine Algorithms" ran at depth 4
 DEFAULT_PHASE = 'auto'               # what the node uses unless told otherwise
 SECTIONS = ('paper001', 'octree_depths', 'paper000', 'scenes', 'accuracy', 'fcl', 'profile',
-            'threads', 'margins', 'continuous', 'static_moves')
+            'threads', 'margins', 'continuous', 'static_moves', 'robot')
 THREAD_COUNTS = (1, 2)  # the World's threads: one, and both cores of a 2-core machine
 # The margins section: margins as fractions of the mean box size (its full side), and one run
 # with half the dynamic pairs masked out (categories 1 and 2 in turn, each accepting its own).
@@ -71,6 +74,9 @@ class Plan(NamedTuple):
     margin_sizes: tuple        # (bodies, ticks per configuration): uniform scene, margins
     continuous_sizes: tuple    # (bodies, ticks per configuration): uniform scene, continuous
     static_move_sizes: tuple   # (bodies, ticks per configuration): uniform scene, statics moving
+    robot_states: int          # the arm (config/arm.yaml): states per round, one per call,
+    robot_batch_states: int    # and K, the states of one World.check_states call,
+    robot_rounds: int          # in this many rounds (each on states a little later)
     budget_s: float            # a run stops early (marked truncated) after this wall time
     # A run expected to take longer per tick is skipped; one stops after a tick that took
     # longer. Keep it >= 1 s: then a skipped run misses every performance target even if its
@@ -100,6 +106,7 @@ PLANS = {
         margin_sizes=((1000, 200), (10000, 100)),
         continuous_sizes=((1000, 200), (10000, 100)),
         static_move_sizes=((10000, 200), (100000, 20)),
+        robot_states=400, robot_batch_states=4000, robot_rounds=40,
         budget_s=120.0, max_tick_s=5.0),
     'quick': Plan(
         flying_out_sizes=(128, 256, 512, 1024), flying_out_ticks=60, flying_out_dt=5.0 / 60,
@@ -117,6 +124,7 @@ PLANS = {
         margin_sizes=((1000, 100), (10000, 40)),
         continuous_sizes=((1000, 100), (10000, 40)),
         static_move_sizes=((10000, 100),),
+        robot_states=400, robot_batch_states=4000, robot_rounds=20,
         budget_s=3.0, max_tick_s=1.0),
     # For the tests: every section on small scenes, in seconds.
     'tiny': Plan(
@@ -131,6 +139,7 @@ PLANS = {
         margin_sizes=((300, 5),),
         continuous_sizes=((300, 5),),
         static_move_sizes=((300, 10),),
+        robot_states=20, robot_batch_states=50, robot_rounds=2,
         budget_s=5.0, max_tick_s=1.0),
 }
 
@@ -551,6 +560,22 @@ class Bench:
                 world.close()
         return rows
 
+    def robot(self):
+        """Time the arm of config/arm.yaml: ours, python-fcl, coal and MuJoCo (robot.py)."""
+        plan = self.plan
+        rows = self._guarded('robot', robot_rows, plan.robot_states, plan.robot_batch_states,
+                             plan.robot_rounds, self.progress)
+        if isinstance(rows, dict):
+            return [rows]
+        for row in rows:
+            if 'error' in row:
+                self.errors.append('robot %s: %s' % (row['method'], row['error']))
+        for target in report.robot_targets(rows):
+            self.progress('robot target: %s: %s: %s' % (
+                target['target'], target['measured'],
+                {True: 'PASS', False: 'FAIL', None: 'n/a'}[target['passed']]))
+        return rows
+
     def _quickest_phase(self, scene_name, bodies):
         """Name the phase with the lowest median tick at the largest size <= bodies."""
         rows = [row for section in ('paper001', 'scenes') for row in self.results.get(section, [])
@@ -631,6 +656,11 @@ def machine():
         versions['python-fcl'] = fcl_version
     except ImportError:
         versions['python-fcl'] = None
+    for name in ('coal', 'mujoco'):
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
     try:
         here = os.path.dirname(os.path.abspath(__file__))
         commit = subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=here,

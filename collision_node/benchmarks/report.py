@@ -3,6 +3,7 @@ import json
 import math
 import os
 
+from collision_node.benchmarks import robot
 from collision_node.benchmarks.stages import SETTLE_TICKS
 
 # The performance targets, in the order doc/benchmarks.md lists them.
@@ -14,6 +15,9 @@ STATIC_MOVES_MAX_RATIO = 1.1   # × the tick with none moved
 STATIC_MOVES_ALL_MAX_RATIO = 1.0  # × the tick with all of them dynamic
 SEED_SCENE_BODIES = 1024
 SEED_SCENE_TARGET_TPS = 1000.0
+ROBOT_STEP_MAX_VS_MUJOCO = 0.7    # the arm, one World.step per state: x MuJoCo's time per state
+ROBOT_BATCH_MAX_VS_MUJOCO = 0.15  # World.check_states, per state
+ROBOT_BATCH_STATES = 4000         # ... with this many states per call
 
 
 def write(directory, results):
@@ -97,11 +101,60 @@ def targets(results):
                      {'target': what, 'phase': row['broad_phase'], 'passed': row[key] <= limit,
                       'measured': '%.3g x (%.3g ms)' % (row[key], row['median_ms'])})
 
+    found += robot_targets(results.get('robot'))
+
     for what in ('PoseArray in -> collisions out through ROS, 10,000 bodies: <= 5 ms median',
                  'JIT: nothing compiles during a tick; node ready <= 5 s with a warm cache',
                  '100,000 dynamic sizes + 10,000 statics loaded: node ready <= 5 s (warm)'):
         found.append({'target': what, 'measured': 'not measured by collision_bench '
                       '(needs the ROS node; see its own benchmark)', 'passed': None})
+    return found
+
+
+def robot_targets(rows):
+    """Judge the arm's two targets, each against the MuJoCo row the ratios use (robot.py).
+
+    Not measured (``passed`` None) when the section did not run, MuJoCo or our method did
+    not, or the batch had another K than the target's.
+    """
+    targets = [
+        ('arm (config/arm.yaml), one World.step per state: <= %g x MuJoCo per state'
+         % ROBOT_STEP_MAX_VS_MUJOCO, robot.OURS_STEP, ROBOT_STEP_MAX_VS_MUJOCO, 1),
+        ('arm, World.check_states with K = {:,} states per call: <= {:g} x MuJoCo per state, '
+         'per state'.format(ROBOT_BATCH_STATES, ROBOT_BATCH_MAX_VS_MUJOCO), robot.OURS_BATCH,
+         ROBOT_BATCH_MAX_VS_MUJOCO, ROBOT_BATCH_STATES)]
+    if rows is None:
+        return [{'target': what, 'measured': 'not measured in this run', 'passed': None}
+                for what, _, _, _ in targets]
+    by_method = {row.get('method'): row for row in rows}
+    reference = next((row for row in rows if row.get('mujoco_reference')), None)
+    found = []
+    for what, method, limit, states_per_call in targets:
+        ours = by_method.get(method, {'skipped': 'not run'})
+        if reference is None:
+            why = '; '.join(sorted({by_method[name].get('skipped') or by_method[name].get(
+                'error', 'not run') for name in (robot.MUJOCO_MESH, robot.MUJOCO_BOX)
+                if name in by_method})) or 'MuJoCo not run'
+            measured = 'not measured: %s' % why
+        elif 'per_state_us' not in ours:
+            measured = 'not measured: %s' % (ours.get('skipped') or ours.get('error'))
+        elif ours['states_per_call'] != states_per_call:
+            measured = 'not measured in this run (%d states per call)' % ours[
+                'states_per_call']
+        else:
+            ratio = ours['per_state_us'] / reference['per_state_us']
+            measured = '%.3gx: %.3g us per state against %s %.3g us%s' % (
+                ratio, ours['per_state_us'], reference['method'], reference['per_state_us'],
+                ' (its answers differ)' if reference.get('mujoco_answers_differ') else '')
+            for other in rows:  # a quicker MuJoCo whose answers differ: its ratio too
+                if (other.get('method') in (robot.MUJOCO_MESH, robot.MUJOCO_BOX)
+                        and other.get('per_state_us', math.inf) < reference['per_state_us']):
+                    measured += '; %.3gx against %s %.3g us (different pairs)' % (
+                        ours['per_state_us'] / other['per_state_us'], other['method'],
+                        other['per_state_us'])
+            found.append({'target': what, 'passed': bool(ratio <= limit), 'measured': measured})
+            continue
+        found.append({'target': what, 'measured': measured, 'passed': None})
     return found
 
 
@@ -362,7 +415,42 @@ def markdown(results, plot_note):
                        ('× still', _get('vs_still')), ('× all dynamic', _get('vs_dynamic')),
                        ('colliding', _get('colliding_pairs')), ('phase', _get('broad_phase'))],
                       results['static_moves']), '']
+    if 'robot' in results:
+        out += _robot_markdown(results['robot'], settings)
     return '\n'.join(out)
+
+
+def _robot_answers(row):
+    """Say how a timed row's answers compare with ours (KeyError for a row not timed)."""
+    row['per_state_us']
+    return robot.answers_text(row)
+
+
+def _robot_markdown(rows, settings):
+    """Return the robot section's lines: the arm of config/arm.yaml, ours and its peers."""
+    return [
+        '## Robot arm: ours against python-fcl, coal and MuJoCo (µs per state)', '',
+        'The arm of config/arm.yaml: 7 box links over 3 static boxes (floor, table, shelf), '
+        'adjacent links and base-floor ignored, {} allowed pairs, each reported when it '
+        'collides or lies within its margin (0.05 m; 0.10 m from the shelf). States over one '
+        "period of the arm's trajectory: {:,} per round one per call, and {:,} in one "
+        '`World.check_states` call; {} rounds, the methods taking turns, each round on states '
+        'a little later. Per state: the median call (one per call) or the call / K. Each '
+        'method gets its input in its own form, prepared outside the clock. Same answers: '
+        "every state's set of pairs against ours; a differing pair within {:g} m of its "
+        'margin would be a boundary case. python-fcl, coal and MuJoCo are benchmark-only '
+        'dependencies (the `bench` extra); one not installed is skipped.'.format(
+            len(robot.allowed_pairs()), settings['robot_states'],
+            settings['robot_batch_states'], settings['robot_rounds'], robot.BOUNDARY_M), '',
+        table([('method', _get('method')), ('states per call', _get('states_per_call')),
+               ('states', _get('states')), ('µs per state', _get('per_state_us')),
+               ('mean µs', _get('mean_us')), ('× MuJoCo', _get('vs_mujoco')),
+               ('pairs per state', _get('pairs_per_state')),
+               ('same answers', _robot_answers)], rows), '',
+        '× MuJoCo divides by the row marked MuJoCo reference below: the quickest MuJoCo '
+        'configuration whose answers agree with ours.', ''] + [
+        '- %s%s: %s' % (row['method'], ' (MuJoCo reference)' if row.get('mujoco_reference')
+                        else '', row['setup']) for row in rows if 'setup' in row] + ['']
 
 
 # --- plot --------------------------------------------------------------------------------
