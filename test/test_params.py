@@ -424,14 +424,18 @@ qos_overrides:
                domain_id=DOMAIN_ID)
     node = CollisionNode(context=context)
     try:
-        dynamic, static = sorted(node.subscriptions, key=lambda s: s.topic_name)
+        by_topic = {s.topic_name: s for s in node.subscriptions}
+        dynamic, static = by_topic['/dynamic_poses'], by_topic['/static_poses']
         assert dynamic.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
         assert dynamic.qos_profile.depth == 3
         assert dynamic.qos_profile.history == HistoryPolicy.KEEP_LAST
         # static_poses keeps the default: reliable, the newest only.
-        assert static.topic_name == '/static_poses'
         assert static.qos_profile.reliability == ReliabilityPolicy.RELIABLE
         assert static.qos_profile.depth == 1
+        # check_states keeps every request: reliable, the whole queue.
+        requests = by_topic['/check_states'].qos_profile
+        assert requests.reliability == ReliabilityPolicy.RELIABLE
+        assert requests.history == HistoryPolicy.KEEP_ALL
     finally:
         node.destroy_node()
 

@@ -27,7 +27,8 @@ from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, N
 
 # The contacts of a batch: each with its state's index, first (it is the first sort key; and
 # so the contacts' fields are not a prefix of these, which numba would take for a subtype).
-STATE_CONTACT_DTYPE = np.dtype([('state', np.uint32)] + CONTACT_DTYPE.descr)
+# Aligned: each float64 field at a multiple of 8, as the clouds' writer reads them.
+STATE_CONTACT_DTYPE = np.dtype([('state', np.uint32)] + CONTACT_DTYPE.descr, align=True)
 # Columns of ``statics``.
 ROW, ID, CATEGORY, MASK, IGNORABLE = range(5)
 # Counters of one pass, as its stats array holds them.

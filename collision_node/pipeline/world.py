@@ -495,7 +495,8 @@ class World:
                 and type(half_extents) is np.ndarray \
                 and half_extents.shape == one_pass.half_extents_shape \
                 and poses.dtype == half_extents.dtype == np.float64 \
-                and poses.flags.c_contiguous and half_extents.flags.c_contiguous:
+                and poses.flags.c_contiguous and half_extents.flags.c_contiguous \
+                and poses.flags.writeable and half_extents.flags.writeable:
             return self._one_pass_step(poses, half_extents, one_pass, start)
         poses = _as_poses(poses)
         half_extents = np.asarray(half_extents, dtype=np.float64)
@@ -628,7 +629,7 @@ class World:
         World's threads, larger ones state after state by a World of their own.
         """
         start = time.perf_counter()
-        states = np.require(states, np.float64, ['C', 'A'])
+        states = np.require(states, np.float64, ['C', 'A', 'W'])
         if states.ndim != 3 or states.shape[2] != 7:
             raise ValueError('states must have shape (K, D, 7): K states of D poses '
                              'x y z qx qy qz qw, got %s' % (states.shape,))
@@ -937,10 +938,11 @@ class World:
 
 
 def _as_poses(poses):
-    """Return ``poses`` as a C-contiguous float64 (N, 7) array (no copy when it is one)."""
+    """Return ``poses`` as a writable C-contiguous float64 (N, 7) array (no copy if it is)."""
     if type(poses) is not np.ndarray or poses.dtype != np.float64 or poses.ndim != 2 \
-            or not poses.flags.c_contiguous:
-        poses = np.require(poses, np.float64, ['C', 'A']).reshape(-1, 7)
+            or not poses.flags.c_contiguous or not poses.flags.writeable:
+        # Writable too: numba compiles a read-only array (a message's bytes) apart.
+        poses = np.require(poses, np.float64, ['C', 'A', 'W']).reshape(-1, 7)
     if poses.shape[1] != 7:
         raise ValueError('poses must have shape (N, 7) as x y z qx qy qz qw, got %s'
                          % (poses.shape,))
@@ -950,11 +952,11 @@ def _as_poses(poses):
 def _per_body_extents(half_extents, count):
     """Return half extents (3,) as one row (1, 3), or (count, 3) as they are; else refuse."""
     if half_extents.shape == (3,):
-        return np.ascontiguousarray(half_extents).reshape(1, 3)
+        return np.require(half_extents, np.float64, ['C', 'A', 'W']).reshape(1, 3)
     if half_extents.shape != (count, 3):
         raise ValueError('half extents must have shape (3,) or (%d, 3), got %s'
                          % (count, half_extents.shape))
-    return np.ascontiguousarray(half_extents)
+    return np.require(half_extents, np.float64, ['C', 'A', 'W'])
 
 
 def _one_pass_stats(contacts, n_dynamic, n_static, counters, total_ms, states, reused):

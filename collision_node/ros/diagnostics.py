@@ -63,6 +63,9 @@ class Monitor:
         # reports as the node checking its inputs.
         self._state = ACTIVE
         self._state_problem = ''      # why the node is not active, when that is a fault
+        self._state_requests = 0      # this period: check_states requests answered
+        self._states = 0              # this period: states they held
+        self._state_request_ms = ''   # the last one's time
 
     def lifecycle(self, now_s, state, problem=''):
         """Record the node's lifecycle state at ``now_s``; ``problem``: why, when it is a fault.
@@ -74,6 +77,12 @@ class Monitor:
             self._last_valid_s = now_s
             self._rejected_since_valid = 0
         self._state, self._state_problem = state, problem
+
+    def states_checked(self, states, ms):
+        """Count a check_states request of ``states`` states, answered in ``ms``."""
+        self._state_requests += 1
+        self._states += states
+        self._state_request_ms = ms
 
     def ignored(self, count=1):
         """Count inputs that came while the node was not active: never checked, never answered."""
@@ -155,6 +164,10 @@ class Monitor:
         values += [('continuous_discrete_ticks', str(self._discrete_ticks)),
                    ('ticks', str(self._ticks)), ('rate_hz', '%.3f' % (self._ticks / elapsed)),
                    ('input_period_ms', _ms(1e3 * input_period)),
+                   ('state_requests', str(self._state_requests)),
+                   ('states_checked', str(self._states)),
+                   ('state_request_ms', self._state_request_ms if self._state_request_ms == ''
+                    else _ms(self._state_request_ms)),
                    ('lifecycle_state', self._state),
                    ('ignored_inputs', str(self._ignored_total)),
                    ('dropped_inputs', str(self._dropped_total)),
@@ -184,6 +197,7 @@ class Monitor:
 
         self._period_start = now_s
         self._ticks = self._received = self._dropped = self._rejected = self._ignored = 0
+        self._state_requests = self._states = 0
         self._period_max[:] = 0.0
         return level, message, values
 

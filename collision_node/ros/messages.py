@@ -1,53 +1,64 @@
-"""The `collisions` cloud (doc/design.md): contacts to sensor_msgs/PointCloud2 and back.
+"""The `collisions` and `state_collisions` clouds (doc/design.md): contacts to and from clouds.
 
 One point per reported pair, height 1, little-endian, dense, point_step 48: FLOAT32
 ``x y z normal_x normal_y normal_z depth``, UINT32 ``id_a type_a id_b type_b``, then FLOAT32
-``distance``, packed in that order (fields added later come last, so a reader that finds
-fields by name or offset keeps working). The points are written and read as one numpy block,
-never point by point.
+``distance`` and ``toi``, packed in that order (fields added later come last, so a reader that
+finds fields by name or offset keeps working). A `state_collisions` cloud (World.check_states'
+answer) has the same points with one more field last, UINT32 ``state``. The points are written
+and read as one numpy block, never point by point.
 
     contacts = cloud_to_contacts(msg)   # structured array, fields as in the cloud
 """
 import array
+import struct
 
 import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.contacts import CONTACT_DTYPE
-from collision_node.ros.cdr import point_cloud_parts, POINT_FIELD_DATATYPES
-
-# The cloud keeps CONTACT_DTYPE's names and order; floats narrow to float32 as doc/design.md fixes
-# (a step of 0.06 mm at 1 km from the origin), ids stay uint32.
-CLOUD_DTYPE = np.dtype([
-    (name, '<f4' if CONTACT_DTYPE[name].kind == 'f' else '<u4') for name in CONTACT_DTYPE.names])
-CLOUD_FIELDS = tuple(
-    (name, CLOUD_DTYPE.fields[name][1], POINT_FIELD_DATATYPES[CLOUD_DTYPE[name]], 1)
-    for name in CLOUD_DTYPE.names)  # (name, offset, datatype, count) of each PointField
+from collision_node.pipeline.small_scene import STATE_CONTACT_DTYPE
+from collision_node.ros.cdr import ENCAPSULATION_SIZE, point_cloud_parts, POINT_FIELD_DATATYPES
 
 
-# CloudWriter reads a contact row as 32-bit words: a float64 field starts at word
-# offset // 4 (as half of a float64 word offset // 8), a uint32 field at offset // 4. Each cloud
-# field is 4 bytes at word offset // 4 of its point.
-_FIELD_IS_FLOAT = np.array([CONTACT_DTYPE[name].kind == 'f' for name in CONTACT_DTYPE.names])
-_CONTACT_WORDS = np.array([CONTACT_DTYPE.fields[name][1] // 4 for name in CONTACT_DTYPE.names])
-_POINT_WORDS = np.array([CLOUD_DTYPE.fields[name][1] // 4 for name in CLOUD_DTYPE.names])
-assert CONTACT_DTYPE.itemsize % 8 == 0 and all(
-    CONTACT_DTYPE.fields[name][1] % CONTACT_DTYPE[name].itemsize == 0
-    for name in CONTACT_DTYPE.names)  # every float64 field is 8-aligned in the row
+def _cloud_dtype(contact_dtype):
+    """Return the points of contacts of ``contact_dtype``: the contacts' fields, then state."""
+    names = list(CONTACT_DTYPE.names) + [
+        name for name in contact_dtype.names if name not in CONTACT_DTYPE.names]
+    # Floats narrow to float32 as doc/design.md fixes (a step of 0.06 mm at 1 km from the
+    # origin), ids stay uint32.
+    return np.dtype([(name, '<f4' if contact_dtype[name].kind == 'f' else '<u4')
+                     for name in names])
+
+
+def _fields(cloud_dtype):
+    """Return (name, offset, datatype, count) of each PointField of ``cloud_dtype`` points."""
+    return tuple((name, cloud_dtype.fields[name][1], POINT_FIELD_DATATYPES[cloud_dtype[name]], 1)
+                 for name in cloud_dtype.names)
+
+
+# A cloud's CDR bytes: the stamp right after the 4-byte encapsulation header; after the data,
+# one byte, is_dense (true).
+_STAMP_OFFSET = ENCAPSULATION_SIZE
+_TAIL = np.ones(1, np.uint8)
+CLOUD_DTYPE = _cloud_dtype(CONTACT_DTYPE)
+CLOUD_FIELDS = _fields(CLOUD_DTYPE)
+STATE_CLOUD_DTYPE = _cloud_dtype(STATE_CONTACT_DTYPE)
+STATE_CLOUD_FIELDS = _fields(STATE_CLOUD_DTYPE)
+_CLOUDS = {CLOUD_FIELDS: CLOUD_DTYPE, STATE_CLOUD_FIELDS: STATE_CLOUD_DTYPE}
 
 
 def contacts_to_points(contacts):
-    """Cast contacts (CONTACT_DTYPE or CLOUD_DTYPE fields) to a new CLOUD_DTYPE array."""
-    contacts = _checked_contacts(contacts)
-    points = np.empty(len(contacts), CLOUD_DTYPE)
-    for name in CLOUD_DTYPE.names:
+    """Cast contacts (the World's, or a cloud's) to a new array of their cloud's points."""
+    contacts, cloud_dtype = _checked_contacts(contacts)
+    points = np.empty(len(contacts), cloud_dtype)
+    for name in cloud_dtype.names:
         points[name] = contacts[name]
     return points
 
 
 def contacts_to_cloud(contacts, header):
-    """Build the `collisions` PointCloud2 (``width = 0``, empty data when nothing collides).
+    """Build the `collisions` (or `state_collisions`) PointCloud2: width 0 when nothing collides.
 
     ``header`` (std_msgs/Header) is used as is. Raises ValueError for other arrays.
     """
@@ -55,9 +66,9 @@ def contacts_to_cloud(contacts, header):
     cloud = PointCloud2(
         header=header, height=1, width=len(points),
         fields=[PointField(name=name, offset=offset, datatype=datatype, count=count)
-                for name, offset, datatype, count in CLOUD_FIELDS],
-        is_bigendian=False, point_step=CLOUD_DTYPE.itemsize,
-        row_step=CLOUD_DTYPE.itemsize * len(points), is_dense=True)
+                for name, offset, datatype, count in _fields(points.dtype)],
+        is_bigendian=False, point_step=points.dtype.itemsize,
+        row_step=points.dtype.itemsize * len(points), is_dense=True)
     # Copied as one block: the constructor would copy ``data`` twice, and the setter tests
     # each byte of anything but an array.array when ROS_PYTHON_CHECK_FIELDS=1.
     data = array.array('B')
@@ -72,39 +83,79 @@ def serialize_collisions(contacts, sec, nanosec, frame_id):
 
 
 class CloudWriter:
-    """Writes `collisions` clouds as CDR bytes into one buffer kept from call to call.
+    """Writes clouds of contacts of one dtype as CDR bytes, into one buffer kept call to call.
 
-    Contacts of CONTACT_DTYPE (the World's) are narrowed to the cloud's points by one kernel,
-    straight into the buffer: 0.05 ms for 10,000 contacts where numpy's field-by-field cast
-    and a join took 0.33 ms. A kept buffer also spares the page faults of a fresh one.
+    Contacts of ``contact_dtype`` (CONTACT_DTYPE: the World's steps; STATE_CONTACT_DTYPE: its
+    check_states) are narrowed to the cloud's points by one kernel, straight into the buffer:
+    0.05 ms for 10,000 contacts where numpy's field-by-field cast and a join took 0.33 ms. A
+    kept buffer also spares the page faults of a fresh one.
     """
 
-    def __init__(self):
+    def __init__(self, contact_dtype=CONTACT_DTYPE):
         self._buffer = np.zeros(0, np.uint8)
+        self._head = None  # (frame_id, the CDR bytes before the points, for width 0)
+        self._contact_dtype = contact_dtype
+        self._cloud_dtype = _cloud_dtype(contact_dtype)
+        # The kernel reads a contact row as 32-bit words: a float64 field starts at word
+        # offset // 4 (as half of a float64 word offset // 8), a uint32 field at offset // 4.
+        # Each cloud field is 4 bytes at word offset // 4 of its point.
+        assert contact_dtype.itemsize % 8 == 0 and all(
+            contact_dtype.fields[name][1] % contact_dtype[name].itemsize == 0
+            for name in contact_dtype.names)  # every float64 field is 8-aligned in the row
+        names = self._cloud_dtype.names
+        self._is_float = np.array([contact_dtype[name].kind == 'f' for name in names])
+        self._contact_words = np.array([contact_dtype.fields[name][1] // 4 for name in names])
+        self._point_words = np.array([self._cloud_dtype.fields[name][1] // 4
+                                      for name in names])
 
     def serialize(self, contacts, sec, nanosec, frame_id):
-        """Return :func:`serialize_collisions`'s bytes."""
-        contacts = _checked_contacts(contacts)
+        """Return :func:`serialize_collisions`'s bytes (this writer's cloud)."""
+        contacts, cloud_dtype = _checked_contacts(contacts)
+        if cloud_dtype != self._cloud_dtype:
+            raise ValueError('contacts with fields %s, this writer writes %s'
+                             % (contacts.dtype.names, self._cloud_dtype.names))
         count = len(contacts)
-        head, tail = point_cloud_parts(sec, nanosec, frame_id, CLOUD_DTYPE, count)
-        size = len(head) + CLOUD_DTYPE.itemsize * count + len(tail)
+        head = self._head_bytes(frame_id)
+        size = len(head) + cloud_dtype.itemsize * count + len(_TAIL)
         if len(self._buffer) < size:
             self._buffer = np.zeros(size, np.uint8)
         buffer = self._buffer[:size]
-        buffer[:len(head)] = np.frombuffer(head, np.uint8)
-        points = buffer[len(head):size - len(tail)].view(CLOUD_DTYPE)
-        if contacts.dtype == CONTACT_DTYPE and contacts.flags.c_contiguous:
-            row_words = CONTACT_DTYPE.itemsize // 4
-            point_words = CLOUD_DTYPE.itemsize // 4
+        buffer[:len(head)] = head
+        # The head changes from cloud to cloud only in the stamp, the width, row_step and
+        # the data's length (the last two words of the head): patched in place.
+        try:
+            struct.pack_into('<iI', buffer, _STAMP_OFFSET, sec, nanosec)
+        except struct.error:
+            point_cloud_parts(sec, nanosec, frame_id, cloud_dtype, 0)  # raises, saying why
+            raise
+        struct.pack_into('<I', buffer, self._width_offset, count)
+        struct.pack_into('<II', buffer, len(head) - 8, cloud_dtype.itemsize * count,
+                         cloud_dtype.itemsize * count)
+        points = buffer[len(head):size - len(_TAIL)].view(cloud_dtype)
+        if contacts.dtype == self._contact_dtype and contacts.flags.c_contiguous:
+            row_words = contacts.dtype.itemsize // 4
+            point_words = cloud_dtype.itemsize // 4
             _narrow_contacts(contacts.view(np.float64).reshape(count, row_words // 2),
                              contacts.view(np.uint32).reshape(count, row_words),
                              points.view(np.float32).reshape(count, point_words),
                              points.view(np.uint32).reshape(count, point_words),
-                             _FIELD_IS_FLOAT, _CONTACT_WORDS, _POINT_WORDS)
+                             self._is_float, self._contact_words, self._point_words)
         else:
             points[:] = contacts_to_points(contacts)
-        buffer[size - len(tail):] = np.frombuffer(tail, np.uint8)
+        buffer[size - len(_TAIL):] = _TAIL
         return buffer.tobytes()
+
+    def _head_bytes(self, frame_id):
+        """Return the head of a cloud of no points in ``frame_id`` (built once per frame)."""
+        if self._head is None or self._head[0] != frame_id:
+            head, tail = point_cloud_parts(0, 0, frame_id, self._cloud_dtype, 0)
+            assert tail == bytes(_TAIL)
+            # The width follows the stamp, the frame_id (a CDR string, then 4-aligned) and
+            # the height.
+            frame_end = _STAMP_OFFSET + 8 + 4 + len(frame_id.encode('utf-8')) + 1
+            self._width_offset = 4 + -(-(frame_end - 4) // 4) * 4 + 4
+            self._head = (frame_id, np.frombuffer(head, np.uint8))
+        return self._head[1]
 
 
 @kernel
@@ -120,41 +171,45 @@ def _narrow_contacts(floats, words, point_floats, point_words, is_float, contact
 
 
 def cloud_to_contacts(msg):
-    """Read a `collisions` PointCloud2 into a new structured array of CLOUD_DTYPE.
+    """Read a `collisions` (or `state_collisions`) PointCloud2 into a new structured array.
 
-    Raises ValueError saying how the cloud differs from a `collisions` cloud.
+    Its dtype is the cloud's points (CLOUD_DTYPE, or STATE_CLOUD_DTYPE with ``state``). Raises
+    ValueError saying how the cloud differs from those clouds.
     """
     if not isinstance(msg, PointCloud2):
         raise TypeError('expected a sensor_msgs/PointCloud2, got %s' % type(msg).__name__)
     fields = tuple((f.name, f.offset, f.datatype, f.count) for f in msg.fields)
-    if fields != CLOUD_FIELDS:
+    if fields not in _CLOUDS:
         raise ValueError('not a collisions cloud: fields (name, offset, datatype, count) are '
-                         '%s, expected %s' % (fields, CLOUD_FIELDS))
+                         '%s, expected %s (or with state last)' % (fields, CLOUD_FIELDS))
+    cloud_dtype = _CLOUDS[fields]
     if msg.is_bigendian:
         raise ValueError('not a collisions cloud: it is big-endian')
-    if msg.point_step != CLOUD_DTYPE.itemsize:
+    if msg.point_step != cloud_dtype.itemsize:
         raise ValueError('not a collisions cloud: point_step %d, expected %d'
-                         % (msg.point_step, CLOUD_DTYPE.itemsize))
+                         % (msg.point_step, cloud_dtype.itemsize))
     if msg.row_step != msg.width * msg.point_step:
         raise ValueError('inconsistent cloud: row_step %d is not width %d x point_step %d'
                          % (msg.row_step, msg.width, msg.point_step))
     if len(msg.data) != msg.height * msg.row_step:
         raise ValueError('inconsistent cloud: %d data bytes, height %d x row_step %d expected'
                          % (len(msg.data), msg.height, msg.row_step))
-    return np.frombuffer(msg.data, CLOUD_DTYPE).copy()
+    return np.frombuffer(msg.data, cloud_dtype).copy()
 
 
 def _checked_contacts(contacts):
+    """Return the contacts as an array and the dtype of their cloud's points."""
     contacts = np.asarray(contacts)
-    if contacts.ndim != 1 or contacts.dtype.names is None \
-            or set(contacts.dtype.names) != set(CLOUD_DTYPE.names):
-        raise ValueError('contacts must be a 1-D structured array with the fields %s, got '
-                         'dtype %s, shape %s' % (CLOUD_DTYPE.names, contacts.dtype,
-                                                 contacts.shape))
-    for name in CLOUD_DTYPE.names:
+    names = set(contacts.dtype.names or ())
+    cloud_dtype = STATE_CLOUD_DTYPE if 'state' in names else CLOUD_DTYPE
+    if contacts.ndim != 1 or names != set(cloud_dtype.names):
+        raise ValueError('contacts must be a 1-D structured array with the fields %s (and '
+                         'state), got dtype %s, shape %s' % (CLOUD_DTYPE.names, contacts.dtype,
+                                                             contacts.shape))
+    for name in cloud_dtype.names:
         # Unsigned ids only: a negative id would wrap to a large uint32 without a word.
-        if contacts.dtype[name].kind != CLOUD_DTYPE[name].kind:
+        if contacts.dtype[name].kind != cloud_dtype[name].kind:
             raise ValueError('contacts field %r has type %s, expected a %s type'
                              % (name, contacts.dtype[name],
-                                'float' if CLOUD_DTYPE[name].kind == 'f' else 'unsigned'))
-    return contacts
+                                'float' if cloud_dtype[name].kind == 'f' else 'unsigned'))
+    return contacts, cloud_dtype

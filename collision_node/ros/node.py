@@ -69,6 +69,7 @@ from visualization_msgs.msg import MarkerArray
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.contacts import CONTACT_DTYPE
 from collision_node.pipeline.jit_progress import compile_progress
+from collision_node.pipeline.small_scene import STATE_CONTACT_DTYPE
 from collision_node.pipeline.static_scene import InvalidCollider
 from collision_node.pipeline.warm_up import warm_up
 from collision_node.pipeline.world import World
@@ -87,6 +88,11 @@ INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
+# check_states requests and their answers: every request is answered, none dropped (a planner
+# waits for each), so both queues keep everything until it is taken (reliable, keep all).
+REQUEST_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
 # RViz draws at most ~30 frames/s, so faster markers are never seen. Markers run on the tick's
 # thread and a large scene makes a large MarkerArray (232 bytes a marker: 23 MB at 100,000
 # bodies): they are rebuilt only after this many times their last build and publish time, so
@@ -219,6 +225,9 @@ class CollisionNode(LifecycleNode):
                                                         self._publish_diagnostics)
         self._collisions_publisher = self._create_output(PointCloud2, 'collisions')
         self._markers_publisher = self._create_output(MarkerArray, '~/markers')
+        self._states_publisher = self._create_output(PointCloud2, 'state_collisions',
+                                                     REQUEST_QOS)
+        self._states_writer = CloudWriter(STATE_CONTACT_DTYPE)
         self._marker_writer = MarkerWriter(config.frame_id)
         self._next_markers_s = -math.inf  # monotonic s
         self._last_sequence = None
@@ -232,6 +241,8 @@ class CollisionNode(LifecycleNode):
                                                 self._ignore_input)
         self._static_subscription = self._create_input(PoseArray, 'static_poses',
                                                        self._on_static_poses, scene=True)
+        self._states_subscription = self._create_input(PoseArray, 'check_states',
+                                                       self._on_check_states, qos=REQUEST_QOS)
         self.get_logger().info(
             '%d static colliders (%d enabled), broad phase %s, %s, %d thread%s' % (
                 len(config.colliders), self._world.static_count, config.broad_phase,
@@ -327,7 +338,8 @@ class CollisionNode(LifecycleNode):
 
     # Inputs.
 
-    def _create_input(self, message_type, topic, callback, ignore=None, scene=False):
+    def _create_input(self, message_type, topic, callback, ignore=None, scene=False,
+                      qos=INPUT_QOS):
         """Subscribe ``callback`` to an input topic, behind the lifecycle gate (at configure).
 
         Every input is made here: raw CDR bytes, the input QoS with its qos_overrides
@@ -339,17 +351,17 @@ class CollisionNode(LifecycleNode):
         # A copy: rclpy writes the qos_overrides into the profile it is given, and the next
         # node of this process would start from them.
         subscription = self.create_subscription(
-            message_type, topic, self._gated(callback, ignore, scene), copy.copy(INPUT_QOS),
+            message_type, topic, self._gated(callback, ignore, scene), copy.copy(qos),
             raw=True, qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self._inputs.append(subscription)  # cleanup destroys it
         return subscription
 
-    def _create_output(self, message_type, topic):
+    def _create_output(self, message_type, topic, qos=OUTPUT_QOS):
         """Return a lifecycle publisher for an output topic (at configure; cleanup destroys it).
 
         It publishes nothing while the node is not active, whatever calls it.
         """
-        publisher = self.create_lifecycle_publisher(message_type, topic, OUTPUT_QOS)
+        publisher = self.create_lifecycle_publisher(message_type, topic, qos)
         self._outputs.append(publisher)
         return publisher
 
@@ -480,6 +492,30 @@ class CollisionNode(LifecycleNode):
             raise InputError('dynamic.half_extents sizes %d bodies, the input has %d poses'
                              % (len(extents), count))
 
+    def _on_check_states(self, buffer):
+        """Answer a check_states request: K states of the D bodies, in one state_collisions.
+
+        A bad request gets no answer (an empty cloud would read as "no collisions"), and the
+        diagnostics name the state and body at fault.
+        """
+        config = self._config
+        start = time.perf_counter()
+        try:
+            message = parse_pose_array(buffer)
+            states = _states_of(message, config)
+            with self._world_lock:
+                result = self._world.check_states(states, config.dynamic_half_extents)
+        except (CdrError, InputError, ValueError) as error:  # the World names state and body
+            self._reject('check_states: %s' % error)
+            return
+        except (ArithmeticError, RuntimeError) as error:
+            self._reject('check_states: states the World cannot check (%s: %s)'
+                         % (type(error).__name__, error))
+            return
+        self._states_publisher.publish(self._states_writer.serialize(
+            result.contacts, message.sec, message.nanosec, config.frame_id))
+        self._monitor.states_checked(len(states), 1e3 * (time.perf_counter() - start))
+
     def _on_static_poses(self, buffer):
         """Move the static colliders from the next tick on; refuse an invalid message whole."""
         try:
@@ -585,6 +621,23 @@ class CollisionNode(LifecycleNode):
             values=[KeyValue(key=key, value=value) for key, value in values])
         self._diagnostics_publisher.publish(DiagnosticArray(
             header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+
+
+def _states_of(message, config):
+    """Return a check_states request's poses as (K, D, 7) states; InputError if refused."""
+    if message.frame_id and message.frame_id != config.frame_id:
+        raise InputError("frame_id '%s' is not the node's frame_id '%s'"
+                         % (message.frame_id, config.frame_id))
+    count, bodies = len(message.poses), config.state_bodies
+    if count > config.max_bodies:
+        raise InputError('%d poses exceed max_bodies %d' % (count, config.max_bodies))
+    if not bodies:
+        raise InputError('the bodies of a state are not known: dynamic.half_extents gives one '
+                         'size for all; set check_states.bodies')
+    if count % bodies:
+        raise InputError('%d poses are not whole states of %d bodies (check_states.bodies)'
+                         % (count, bodies))
+    return message.poses.reshape(-1, bodies, 7)
 
 
 def _add_colliders(world, colliders):

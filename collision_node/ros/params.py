@@ -76,6 +76,9 @@ PARAMETERS = {
     'input_timeout_s': Spec(DOUBLE, 1.0, 'no valid input for this long: ERROR diagnostic; '
                                          '0 disables'),
     'max_bodies': Spec(INTEGER, 100000, 'inputs with more poses are rejected'),
+    'check_states.bodies': Spec(INTEGER, 0, 'bodies per state in a check_states request; 0: '
+                                            'one per size in dynamic.half_extents (set it when '
+                                            'one size is for all)'),
     'threads': Spec(INTEGER, 1, "threads for the box writes, the grid's pair search, the SAT and "
                                 "the contacts: 1 keeps every tick on the executor's thread; 2+ "
                                 "pay from ~10,000 bodies"),
@@ -160,6 +163,7 @@ class Parameters(NamedTuple):
     tick_rate_hz: float
     input_timeout_s: float
     max_bodies: int
+    state_bodies: int                 # bodies per check_states state (0: not known)
     threads: int
     diagnostic_period_s: float
     next_static_id: int = 0  # the id of the next collider added at run time
@@ -215,10 +219,22 @@ def parse(values):
         tick_rate_hz=_in_range('tick_rate_hz', read['tick_rate_hz'], 0.0, MAX_TICK_RATE_HZ),
         input_timeout_s=_in_range('input_timeout_s', read['input_timeout_s'], 0.0, math.inf),
         max_bodies=_in_range('max_bodies', read['max_bodies'], 1, 2**32 - 1),
+        state_bodies=_state_bodies(read['check_states.bodies'], dynamic_half_extents),
         threads=_in_range('threads', read['threads'], 1, MAX_THREADS),
         diagnostic_period_s=_positive('diagnostic_updater.period',
                                       read['diagnostic_updater.period']),
         next_static_id=len(colliders))
+
+
+def _state_bodies(value, dynamic_half_extents):
+    """Return the bodies of a check_states state: ``value``, else one per dynamic size."""
+    name = 'check_states.bodies'
+    _in_range(name, value, 0, 2**32 - 1)
+    sizes = len(dynamic_half_extents) if dynamic_half_extents.ndim == 2 else 0
+    if value and sizes and value != sizes:
+        raise ParameterError(name, '%d bodies, but dynamic.half_extents sizes %d'
+                             % (value, sizes))
+    return value or sizes
 
 
 def _collider(name, value_of, static_id):
