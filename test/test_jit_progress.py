@@ -92,7 +92,8 @@ def test_counts_periods_and_estimate(monkeypatch):
             (0.0, 'start', collide), (1.0, 'start', helper),  # numba's helper: not counted
             (1.5, 'end', helper), (2.0, 'end', collide),
             (6.0, 'start', axis), (7.0, 'end', axis), (7.5, 'start', axis), (8.0, 'end', axis),
-            (9.0, 'start', sort), (10.0, 'end', sort)]:
+            (9.0, 'start', sort), (10.0, 'end', sort),
+            (12.0, 'start', axis), (12.5, 'end', axis)]:  # a third type of a counted kernel
         now[0] = time_s
         getattr(progress, 'on_' + kind)(FakeEvent(kernel))
     progress.finish()
@@ -101,7 +102,9 @@ def test_counts_periods_and_estimate(monkeypatch):
         # 1 of 3 done in 6 s: the 2 left take 12 s more
         'compiling kernel 2 of 3 (sat.axis), 6 s so far, about 12 s left',
         # 9.0 s: less than a period after the last line
-        'compiled 3 kernels in 10.0 s']  # axis compiled two types, counted once
+        # 12.0 s: axis again, already counted, so not a fourth kernel of 3
+        'compiling kernel 3 of 3 (sat.axis), 12 s so far, about 0 s left',
+        'compiled 3 kernels in 12.5 s']  # axis compiled three types, counted once
 
 
 @pytest.mark.slow

@@ -52,9 +52,10 @@ class CompileProgress(event.Listener):
         elif now - self._reported_s >= self._period_s:
             self._reported_s = now
             done = len(self._compiled)
+            # A kernel compiling another type was counted already: it is not one more.
             line = 'compiling kernel %d of %d (%s), %.0f s so far' % (
-                done + 1, len(KERNELS) - self._ready_before, _name(dispatcher),
-                now - self._started_s)
+                done + (dispatcher not in self._compiled), len(KERNELS) - self._ready_before,
+                _name(dispatcher), now - self._started_s)
             if done:
                 left = len(KERNELS) - self._ready_before - done
                 line += ', about %.0f s left' % ((now - self._started_s) * left / done)
