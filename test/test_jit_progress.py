@@ -93,7 +93,8 @@ def test_counts_periods_and_estimate(monkeypatch):
             (1.5, 'end', helper), (2.0, 'end', collide),
             (6.0, 'start', axis), (7.0, 'end', axis), (7.5, 'start', axis), (8.0, 'end', axis),
             (9.0, 'start', sort), (10.0, 'end', sort),
-            (12.0, 'start', axis), (12.5, 'end', axis)]:  # a third type of a counted kernel
+            (12.0, 'start', axis), (12.5, 'end', axis),  # a third type of a counted kernel
+            (18.0, 'start', warm), (18.5, 'end', warm)]:  # a new type of a kernel compiled before
         now[0] = time_s
         getattr(progress, 'on_' + kind)(FakeEvent(kernel))
     progress.finish()
@@ -104,7 +105,9 @@ def test_counts_periods_and_estimate(monkeypatch):
         # 9.0 s: less than a period after the last line
         # 12.0 s: axis again, already counted, so not a fourth kernel of 3
         'compiling kernel 3 of 3 (sat.axis), 12 s so far, about 0 s left',
-        'compiled 3 kernels in 12.5 s']  # axis compiled three types, counted once
+        # 18.0 s: warm was compiled before the block, so it is not a kernel to do
+        'compiling kernel 3 of 3 (sat.warm), 18 s so far, about 0 s left',
+        'compiled 3 kernels in 18.5 s']  # axis compiled three types, counted once
 
 
 @pytest.mark.slow

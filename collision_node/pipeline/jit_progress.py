@@ -32,9 +32,10 @@ class CompileProgress(event.Listener):
         self._report = report
         self._period_s = period_s
         self._clock = clock
-        # Kernels already compiled in this process need nothing; lazily imported modules add
-        # kernels to KERNELS while the warm-up runs, so the count to do is taken each time.
-        self._ready_before = sum(1 for dispatcher in KERNELS if dispatcher.overloads)
+        # A kernel compiled before in this process is not counted, even if it compiles another
+        # type now (the time it takes still counts); lazily imported modules add kernels to
+        # KERNELS while the warm-up runs, so the count to do is taken each time.
+        self._ready_before = {dispatcher for dispatcher in KERNELS if dispatcher.overloads}
         self._compiled = set()  # kernels compiled since; a kernel may compile several types
         self._started_s = None
         self._reported_s = -math.inf
@@ -52,19 +53,19 @@ class CompileProgress(event.Listener):
         elif now - self._reported_s >= self._period_s:
             self._reported_s = now
             done = len(self._compiled)
-            # A kernel compiling another type was counted already: it is not one more.
+            to_do = len(KERNELS) - len(self._ready_before)
+            counted = dispatcher in self._compiled or dispatcher in self._ready_before
             line = 'compiling kernel %d of %d (%s), %.0f s so far' % (
-                done + (dispatcher not in self._compiled), len(KERNELS) - self._ready_before,
-                _name(dispatcher), now - self._started_s)
+                done + (not counted), to_do, _name(dispatcher), now - self._started_s)
             if done:
-                left = len(KERNELS) - self._ready_before - done
+                left = to_do - done
                 line += ', about %.0f s left' % ((now - self._started_s) * left / done)
             self._report(line)
 
     def on_end(self, compile_event):
         """Count a kernel once it compiled."""
         dispatcher = compile_event.data['dispatcher']
-        if dispatcher in KERNELS:
+        if dispatcher in KERNELS and dispatcher not in self._ready_before:
             self._compiled.add(dispatcher)
 
     def finish(self):
