@@ -3,7 +3,7 @@
     collision_latency --quick --json latency.json     # under 2 minutes
     collision_latency --json latency.json             # 100 ... 100,000 bodies at 10, 100, 1,000 Hz
 
-Prints markdown tables; ``--json`` writes every number. Seven sections:
+Prints markdown tables; ``--json`` writes every number. Eight sections:
 
 * latency: the node runs as its own process (``python -m collision_node.ros.node``, the console
   script's code, default parameters but the scene's sizes); this process publishes pre-serialised
@@ -14,6 +14,10 @@ Prints markdown tables; ``--json`` writes every number. Seven sections:
   markers) written as CDR bytes, ``publish`` handing them to rclpy; the node's overhead is
   parse + output + publish over the total. Inputs the node had no
   time for are dropped (depth-1 input queue), so at high rates not every input is answered.
+* arm: the scene a robot runs, config/arm.yaml (7 links over 3 colliders) at 200 Hz: the node
+  and an echo node (below) both up, answering in turns of a few seconds each, so that a slow
+  moment of the machine hits both alike. The node's median latency minus the echo's is what
+  the node adds at robot scale (target: at most ``ARM_TARGET_ADDED_MS``).
 * floor: the same inputs answered by an echo node (:func:`run_echo`, its own process) that
   publishes the node's cloud for the scene at once: what ROS itself costs both ways (DDS,
   the two executors, taking and publishing the bytes). The node's latency minus this floor is
@@ -56,6 +60,8 @@ from sensor_msgs.msg import PointCloud2
 
 from collision_node.benchmarks.params_files import (scene_parameters, write_params_file,
                                                     write_scene_files)
+from collision_node.benchmarks.robot import arm_world
+from collision_node.pipeline import scenes
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import uniform, UNIFORM_HALF_EXTENTS
 from collision_node.pipeline.world import World
@@ -64,6 +70,7 @@ from collision_node.ros.cdr import ENCAPSULATION_SIZE, serialize_pose_array
 from collision_node.ros.memory import keep_heap_memory
 from collision_node.ros.messages import CloudWriter, contacts_to_cloud
 from collision_node.ros.node import CollisionNode, INPUT_QOS, OUTPUT_QOS  # the node's own QoS
+from collision_node.tools.demo import default_config
 from collision_node.tools.processes import stop_process
 
 STATUS_NAME = 'collision_node: collision_check'
@@ -82,7 +89,10 @@ FILE_SCENE_STATIC = 10000
 SKIP_TICKS = 30        # timed ticks per case of the skips section
 STAMP_OFFSET = ENCAPSULATION_SIZE  # the stamp (int32 sec, uint32 nanosec) follows the header
 NODE_STOP_TIMEOUT_S = 10.0
-SECTIONS = ('latency', 'floor', 'output', 'skips', 'sphere', 'gaps', 'startup')
+SECTIONS = ('latency', 'arm', 'floor', 'output', 'skips', 'sphere', 'gaps', 'startup')
+ARM_RATE_HZ = 200.0
+ARM_TARGET_ADDED_MS = 0.15  # the node's median latency over the echo's, at most (issue target)
+ECHO_NAMESPACE = 'echo'     # the arm section's echo answers /echo/dynamic_poses
 # The gaps section: what comes before each tick, (name, kind, seconds), timed in rounds that
 # take every case in turn, so that a slow minute of a shared machine hits them all alike.
 GAPS = (('nothing (back to back)', 'none', 0.0), ('sleep 1 ms', 'sleep', 0.001),
@@ -104,17 +114,20 @@ class Plan(NamedTuple):
     sphere_sizes: tuple
     gap_bodies: int    # size of the gaps section's scene
     startup: bool
+    arm_turns: int     # the arm section's turns each of the node and of the echo
+    arm_turn_s: float  # seconds of input per turn
 
 
 PLANS = {
     'full': Plan(sizes=(100, 1000, 10000, 100000), rates=(10, 100, 1000), run_s=10.0,
                  max_messages=3000, skip_bodies=10000, sphere_sizes=(10000, 100000),
-                 gap_bodies=10000, startup=True),
+                 gap_bodies=10000, startup=True, arm_turns=10, arm_turn_s=3.0),
     'quick': Plan(sizes=(100, 1000, 10000, 100000), rates=(10, 100, 1000), run_s=3.0,
                   max_messages=600, skip_bodies=10000, sphere_sizes=(10000,), gap_bodies=10000,
-                  startup=False),
+                  startup=False, arm_turns=6, arm_turn_s=2.0),
     'tiny': Plan(sizes=(100,), rates=(20,), run_s=1.0, max_messages=20, skip_bodies=200,
-                 sphere_sizes=(200,), gap_bodies=200, startup=False),
+                 sphere_sizes=(200,), gap_bodies=200, startup=False, arm_turns=2,
+                 arm_turn_s=0.5),
 }
 
 
@@ -143,10 +156,13 @@ def node_parameters(static_poses, static_extents, dynamic_extents, broad_phase='
 
 
 class Client:
-    """This process's side: publishes inputs, records answers and diagnostics by stamp."""
+    """This process's side: publishes inputs, records answers and diagnostics by stamp.
 
-    def __init__(self, context):
-        self.node = rclpy.create_node('collision_latency', context=context)
+    Its topics are relative: in ``namespace`` it talks to a node there (the arm section's echo).
+    """
+
+    def __init__(self, context, namespace=''):
+        self.node = rclpy.create_node('collision_latency', namespace=namespace, context=context)
         self.poses = self.node.create_publisher(PoseArray, 'dynamic_poses', INPUT_QOS)
         self.node.create_subscription(PointCloud2, 'collisions', self._on_cloud, OUTPUT_QOS,
                                       raw=True)
@@ -221,7 +237,7 @@ def start_node(params_path, domain_id, cache_dir=None, command=None):
     return process, log
 
 
-def run_echo(cloud_path):
+def run_echo(cloud_path, namespace=''):
     """Answer every PoseArray at once with the cloud in ``cloud_path``, its stamp copied.
 
     The floor section's stand-in for the node: the same messages both ways through the same
@@ -231,7 +247,7 @@ def run_echo(cloud_path):
     with open(cloud_path, 'rb') as source:
         cloud = bytearray(source.read())
     rclpy.init()
-    node = rclpy.create_node('collision_echo')
+    node = rclpy.create_node('collision_echo', namespace=namespace)
     publisher = node.create_publisher(PointCloud2, 'collisions', OUTPUT_QOS)
 
     def answer(data):
@@ -280,9 +296,8 @@ def settle(client, frames, run_id):
             raise RuntimeError('no answer while settling')
 
 
-def run_rate(client, frames, rate_hz, plan, run_id):
-    """Publish at ``rate_hz`` for plan.run_s (or plan.max_messages); return the row."""
-    count = min(plan.max_messages, max(int(rate_hz * plan.run_s), 1))
+def publish_at_rate(client, frames, rate_hz, count, run_id):
+    """Publish ``count`` inputs at ``rate_hz``; return (latencies in ms, start, end)."""
     period = 1.0 / rate_hz
     start = time.perf_counter()
     next_send = start
@@ -296,11 +311,18 @@ def run_rate(client, frames, rate_hz, plan, run_id):
     end = time.perf_counter()
     client.wait(lambda: all((run_id, k) in client.received for k in range(count)),
                 STRAGGLER_S)
+    latencies = np.array([client.received[(run_id, k)] - client.sent[(run_id, k)]
+                          for k in range(count) if (run_id, k) in client.received]) * 1e3
+    return latencies, start, end
+
+
+def run_rate(client, frames, rate_hz, plan, run_id):
+    """Publish at ``rate_hz`` for plan.run_s (or plan.max_messages); return the row."""
+    count = min(plan.max_messages, max(int(rate_hz * plan.run_s), 1))
+    latencies, start, end = publish_at_rate(client, frames, rate_hz, count, run_id)
     # Diagnostics periods end at most one period after the last tick.
     client.wait(lambda: any(t > end + DIAGNOSTIC_PERIOD_S for t, _ in client.statuses),
                 3 * DIAGNOSTIC_PERIOD_S)
-    latencies = np.array([client.received[(run_id, k)] - client.sent[(run_id, k)]
-                          for k in range(count) if (run_id, k) in client.received]) * 1e3
     statuses = [values for t, values in client.statuses
                 if start < t <= end + DIAGNOSTIC_PERIOD_S + 0.5 and values['ticks'] != '0']
     row = {'rate_hz': rate_hz, 'sent': count, 'sent_rate_hz': count / max(end - start, 1e-9),
@@ -343,6 +365,67 @@ def latency_section(plan, statics, broad_phase, thread_counts, domain_id, progre
 
     runs = [(bodies, threads) for bodies in plan.sizes for threads in thread_counts]
     return _answered_runs(plan, runs, statics, domain_id, progress, start)
+
+
+def arm_section(plan, domain_id, progress):
+    """config/arm.yaml at ARM_RATE_HZ: the node and the echo in turns; the node's added ms."""
+    arm = scenes.arm()
+    states = [arm.dynamic_poses(k / ARM_RATE_HZ) for k in range(FRAMES)]
+    frames = [serialize_pose_array(0, 0, 'world', poses) for poses in states]
+    count = max(int(ARM_RATE_HZ * plan.arm_turn_s), 1)
+    latencies = {'node': [], 'echo': []}
+    turn_medians = {'node': [], 'echo': []}
+    with ros_context(domain_id) as context, tempfile.TemporaryDirectory() as directory:
+        cloud_path = os.path.join(directory, 'arm_cloud.bin')
+        contacts = arm_world().step(states[0], arm.dynamic_half_extents).contacts
+        with open(cloud_path, 'wb') as out:
+            out.write(bytes(CloudWriter().serialize(contacts, 0, 0, 'world')))
+        clients = {'node': Client(context), 'echo': Client(context, ECHO_NAMESPACE)}
+        started = time.perf_counter()
+        processes = {'node': start_node(default_config('arm'), domain_id),
+                     'echo': start_node(None, domain_id, command=[
+                         sys.executable, '-m', 'collision_node.benchmarks.collision_latency',
+                         '--echo', cloud_path, '--echo-namespace', ECHO_NAMESPACE])}
+        try:
+            for who, client in clients.items():
+                ready_s = wait_ready(client, *processes[who], frames[0], 1, started)
+                settle(client, frames, 2)
+                progress('arm, %s: ready after %.2f s' % (who, ready_s))
+            for turn in range(plan.arm_turns):
+                for who, client in clients.items():
+                    measured, _, _ = publish_at_rate(client, frames, ARM_RATE_HZ, count,
+                                                     10 + turn)
+                    latencies[who].append(measured)
+                    turn_medians[who].append(float(np.median(measured)))
+                    if processes[who][0].poll() is not None:
+                        raise RuntimeError(node_failure(*processes[who]))
+            progress('arm: median ms per turn: node %s; echo %s'
+                     % (_fmt_list(turn_medians['node']), _fmt_list(turn_medians['echo'])))
+        finally:
+            for client in clients.values():
+                client.close()
+            for process, log in processes.values():
+                stop_node(process, log)
+    row = {'rate_hz': ARM_RATE_HZ, 'turns': plan.arm_turns, 'sent': plan.arm_turns * count,
+           'target_added_ms': ARM_TARGET_ADDED_MS}
+    for who in ('node', 'echo'):
+        measured = np.concatenate(latencies[who])
+        row[who + '_answered'] = len(measured)
+        row.update(percentiles(who, measured))
+        row[who + '_turn_medians_ms'] = turn_medians[who]
+    row['added_ms'] = row['node_ms_median'] - row['echo_ms_median']
+    return row
+
+
+def arm_target_line(row):
+    """Return the arm section's target as one line, with its verdict."""
+    return ('arm through ROS at %g Hz, median latency <= echo + %g ms: node %.3f ms, echo %.3f '
+            'ms (%d/%d and %d/%d answered): +%.3f ms: %s' % (
+                row['rate_hz'], row['target_added_ms'], row['node_ms_median'],
+                row['echo_ms_median'], row['node_answered'], row['sent'], row['echo_answered'],
+                row['sent'], row['added_ms'],
+                'PASS' if row['added_ms'] <= row['target_added_ms']
+                and row['node_answered'] == row['sent'] else 'FAIL'))
 
 
 def floor_section(plan, statics, domain_id, progress):
@@ -647,6 +730,10 @@ def _fmt(value, digits=3):
     return str(value)
 
 
+def _fmt_list(values):
+    return ' '.join(_fmt(value) for value in values)
+
+
 def markdown(results):
     out = ['# collision_latency', '', '`%s`' % results['command'], '',
            '%s; %s; %s=%s; Python %s' % (
@@ -678,6 +765,19 @@ def markdown(results):
         ready = sorted({(r['bodies'], r['threads'], round(r['ready_s'], 2)) for r in rows})
         out += ['', 'Node ready (process start → first answer, warm cache): ' + ', '.join(
             '%d bodies (%d thread(s)) %.2f s' % item for item in ready), '']
+    arm = results.get('arm')
+    if arm:
+        out += ['## Arm: config/arm.yaml, the node against an echo node (ms)', '',
+                'The node and the echo answer in turns of %g s each, %d turns; medians per '
+                'turn: node %s, echo %s.' % (
+                    results['plan']['arm_turn_s'], arm['turns'],
+                    _fmt_list(arm['node_turn_medians_ms']),
+                    _fmt_list(arm['echo_turn_medians_ms'])), '',
+                '| who | answered | median | p99 | max |', '|---|---|---|---|---|']
+        out += ['| %s | %d/%d | %s | %s | %s |' % (
+            who, arm[who + '_answered'], arm['sent'], _fmt(arm[who + '_ms_median']),
+            _fmt(arm[who + '_ms_p99']), _fmt(arm[who + '_ms_max'])) for who in ('node', 'echo')]
+        out += ['', 'Target: ' + arm_target_line(arm), '']
     for title, key, columns in (
             ('Floor: the same messages answered at once by an echo node (ms)', 'floor',
              ('bodies', 'poses', 'statics', 'rate_hz', 'answered', 'latency_ms_median',
@@ -723,6 +823,8 @@ def parse_arguments(argv):
     parser.add_argument('--json', metavar='FILE', help='write every number here')
     parser.add_argument('--echo', metavar='CLOUD_FILE',
                         help="run as the floor section's echo node, answering with this cloud")
+    parser.add_argument('--echo-namespace', default='', metavar='NS',
+                        help="the echo node's namespace (the arm section's: %s)" % ECHO_NAMESPACE)
     parser.add_argument('--domain-id', type=int, default=100 + os.getpid() % 100,
                         help='ROS_DOMAIN_ID of the node and this process')
     options = parser.parse_args(argv)
@@ -743,7 +845,7 @@ def main(args=None):
     argv = sys.argv[1:] if args is None else args
     options, plan = parse_arguments(argv)
     if options.echo:
-        run_echo(options.echo)
+        run_echo(options.echo, options.echo_namespace)
         return 0
     keep_heap_memory()  # as the node does: receiving large clouds costs no page faults
     start = time.perf_counter()
@@ -761,6 +863,9 @@ def main(args=None):
     if 'latency' in sections:
         results['latency'] = latency_section(plan, options.statics, options.broad_phase,
                                              options.threads, options.domain_id, progress)
+    if 'arm' in sections:
+        results['arm'] = arm_section(plan, options.domain_id, progress)
+        progress(arm_target_line(results['arm']))
     if 'floor' in sections:
         results['floor'] = floor_section(plan, options.statics, options.domain_id, progress)
     if 'output' in sections:
