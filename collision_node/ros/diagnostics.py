@@ -55,6 +55,7 @@ class Monitor:
         self._world['min_distance'] = ''       # m, signed, in the last tick ('' without pairs)
         self._world['min_distance_pair'] = ''  # as collision_monitor writes it: d3-s1
         self._phase_stats = {}  # the broad phase's own counters (octree leaves, sorts, ...)
+        self._last_stats = None  # the last tick's World stats, not yet read into _world
         self._scene_version = 0
         self._static_ids = ''  # name:id of every static collider, in static_colliders order
         self._ignored = 0        # this period: inputs that came while the node was not active
@@ -124,10 +125,17 @@ class Monitor:
         self._ticks += 1
         self._last_valid_s = now_s
         self._rejected_since_valid = 0
+        self._discrete_ticks += str(world_stats['continuous']).startswith(DISCRETE_FALLBACK)
+        self._last_stats = world_stats  # report() reads the last tick's: a tick copies nothing
+
+    def _read_last_stats(self):
+        """Take the World stats of the last tick, if one came since, into the report's values."""
+        world_stats, self._last_stats = self._last_stats, None
+        if world_stats is None:
+            return
         for key in WORLD_KEYS:
             self._world[key] = world_stats[key]
         self._world['reused_result'] = world_stats.get('reused', False)
-        self._discrete_ticks += str(self._world['continuous']).startswith(DISCRETE_FALLBACK)
         pair = world_stats.get('min_distance_pair')
         self._world['min_distance'] = '' if pair is None else \
             '%.6g' % world_stats['min_distance']
@@ -145,6 +153,7 @@ class Monitor:
         elapsed = max(now_s - self._period_start, 1e-9)
         inputs = self._received + self._dropped
         input_period = tick_period_s or (elapsed / inputs if inputs else 0.0)
+        self._read_last_stats()
         count = min(self._ticks, len(self._times))
         times = self._times[:count]
         if count:  # 'higher': a reported percentile is always a time some tick really took
