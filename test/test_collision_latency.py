@@ -31,7 +31,7 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
          str(path), '--domain-id', str(DOMAIN_ID)], cwd=REPO, capture_output=True, text=True,
         timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
-    for title in ('PoseArray in → collisions out', 'Arm:', 'Floor:', 'Output:',
+    for title in ('PoseArray in → collisions out', 'Arm:', 'Floor:', 'Tick:', 'Output:',
                   'Skip what a scene', 'Sphere', 'Gaps:'):
         assert title in done.stdout
     results = json.loads(path.read_text())
@@ -52,6 +52,12 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
         assert 0 < arm[who + '_ms_median'] <= arm[who + '_ms_p99'] <= arm[who + '_ms_max']
     assert arm['added_ms'] == arm['node_ms_median'] - arm['echo_ms_median']
     assert 'Target: arm through ROS' in done.stdout
+    # The node's callback in this process: the arm, then the uniform scene, every stage timed.
+    assert [(r['scene'], r['bodies']) for r in results['tick']] == [
+        ('arm (config/arm.yaml)', 7), ('uniform 64 (32 static)', 32)]
+    for r in results['tick']:
+        assert r['inputs'] == 50 and r['us_per_input'] > 0
+        assert 0 < r['narrow_us'] <= r['total_us'] and 0 < r['output_us'] <= r['total_us']
     # The echo answered the same inputs, and reports no stages.
     floor, = results['floor']
     assert (floor['bodies'], floor['rate_hz'], floor['threads']) == (100, 20, None)

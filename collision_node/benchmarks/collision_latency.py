@@ -3,7 +3,7 @@
     collision_latency --quick --json latency.json     # under 2 minutes
     collision_latency --json latency.json             # 100 ... 100,000 bodies at 10, 100, 1,000 Hz
 
-Prints markdown tables; ``--json`` writes every number. Eight sections:
+Prints markdown tables; ``--json`` writes every number. Nine sections:
 
 * latency: the node runs as its own process (``python -m collision_node.ros.node``, the console
   script's code, default parameters but the scene's sizes); this process publishes pre-serialised
@@ -22,6 +22,9 @@ Prints markdown tables; ``--json`` writes every number. Eight sections:
   publishes the node's cloud for the scene at once: what ROS itself costs both ways (DDS,
   the two executors, taking and publishing the bytes). The node's latency minus this floor is
   what the node adds.
+* tick: the node's input callback (``CollisionNode._check``) in this process, inputs back to
+  back, for the arm and uniform scenes: µs per input and the node's stage medians, the work
+  of a tick without DDS, the executor or cold caches.
 * output: message object vs pre-serialised bytes for the cloud, written and published, here.
 * skips: what a scene does not need, each against the case that needs it, through
   ``CollisionNode._check`` (the node's whole tick without the transport), in this process.
@@ -60,7 +63,7 @@ from sensor_msgs.msg import PointCloud2
 
 from collision_node.benchmarks.params_files import (scene_parameters, write_params_file,
                                                     write_scene_files)
-from collision_node.benchmarks.robot import arm_world
+from collision_node.benchmarks.robot import arm_states, arm_world
 from collision_node.pipeline import scenes
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import uniform, UNIFORM_HALF_EXTENTS
@@ -89,7 +92,7 @@ FILE_SCENE_STATIC = 10000
 SKIP_TICKS = 30        # timed ticks per case of the skips section
 STAMP_OFFSET = ENCAPSULATION_SIZE  # the stamp (int32 sec, uint32 nanosec) follows the header
 NODE_STOP_TIMEOUT_S = 10.0
-SECTIONS = ('latency', 'arm', 'floor', 'output', 'skips', 'sphere', 'gaps', 'startup')
+SECTIONS = ('latency', 'arm', 'floor', 'tick', 'output', 'skips', 'sphere', 'gaps', 'startup')
 ARM_RATE_HZ = 200.0
 ARM_TARGET_ADDED_MS = 0.15  # the node's median latency over the echo's, at most (issue target)
 ECHO_NAMESPACE = 'echo'     # the arm section's echo answers /echo/dynamic_poses
@@ -116,18 +119,22 @@ class Plan(NamedTuple):
     startup: bool
     arm_turns: int     # the arm section's turns each of the node and of the echo
     arm_turn_s: float  # seconds of input per turn
+    tick_inputs: int   # the tick section's inputs per scene
+    tick_bodies: tuple  # the tick section's uniform scenes (half of the bodies static)
 
 
 PLANS = {
     'full': Plan(sizes=(100, 1000, 10000, 100000), rates=(10, 100, 1000), run_s=10.0,
                  max_messages=3000, skip_bodies=10000, sphere_sizes=(10000, 100000),
-                 gap_bodies=10000, startup=True, arm_turns=10, arm_turn_s=3.0),
+                 gap_bodies=10000, startup=True, arm_turns=10, arm_turn_s=3.0,
+                 tick_inputs=20000, tick_bodies=(64, 1000)),
     'quick': Plan(sizes=(100, 1000, 10000, 100000), rates=(10, 100, 1000), run_s=3.0,
                   max_messages=600, skip_bodies=10000, sphere_sizes=(10000,), gap_bodies=10000,
-                  startup=False, arm_turns=6, arm_turn_s=2.0),
+                  startup=False, arm_turns=6, arm_turn_s=2.0, tick_inputs=5000,
+                  tick_bodies=(64, 1000)),
     'tiny': Plan(sizes=(100,), rates=(20,), run_s=1.0, max_messages=20, skip_bodies=200,
                  sphere_sizes=(200,), gap_bodies=200, startup=False, arm_turns=2,
-                 arm_turn_s=0.5),
+                 arm_turn_s=0.5, tick_inputs=50, tick_bodies=(64,)),
 }
 
 
@@ -592,6 +599,48 @@ def tick_ms(context, case, ticks):
         node.destroy_node()
 
 
+def tick_section(plan, domain_id):
+    """The node's tick in this process, warm, inputs back to back: µs per input and stage.
+
+    The node's input callback (CollisionNode._check) on pre-serialised PoseArrays: parse and
+    checks, World.step, the cloud written, the bytes handed to rclpy (no subscriber), the
+    diagnostics' record. No DDS, no executor, and caches warm from the last input: through
+    ROS the same work takes longer (the gaps section shows what idle time costs).
+    """
+    arm = arm_states(400)
+    cases = [('arm (config/arm.yaml)', ['--ros-args', '--params-file', default_config('arm')],
+              [], arm)]
+    for bodies in plan.tick_bodies:
+        frames, statics, static_extents, extents = scene_input(bodies, True)
+        cases.append(('uniform %d (%d static)' % (bodies, len(statics)), [],
+                      [Parameter(name, value=value) for name, value in node_parameters(
+                          statics, static_extents, extents).items()], frames))
+    rows = []
+    with ros_context(domain_id) as context:
+        for what, arguments, overrides, frames in cases:
+            node = CollisionNode(context=context, cli_args=arguments,
+                                 parameter_overrides=overrides)
+            try:
+                inputs = [serialize_pose_array(k, 0, 'world', poses)
+                          for k, poses in enumerate(frames)]
+                for data in inputs:  # the World's first steps build what later ones reuse
+                    node._check(data)
+                node._monitor.report(time.monotonic(), 0.0)  # a period of timed inputs only
+                start = time.perf_counter()
+                for k in range(plan.tick_inputs):
+                    node._check(inputs[k % len(inputs)])
+                per_input_us = 1e6 * (time.perf_counter() - start) / plan.tick_inputs
+                values = dict(node._monitor.report(time.monotonic(), 0.0)[2])
+            finally:
+                node.destroy_node()
+            row = {'scene': what, 'bodies': len(frames[0]), 'inputs': plan.tick_inputs,
+                   'us_per_input': per_input_us}
+            for stage in diagnostics.STAGES:
+                row[stage + '_us'] = 1e3 * float(values[stage + '_ms_median'])
+            rows.append(row)
+    return rows
+
+
 def skips_section(plan, domain_id):
     rows = []
     with ros_context(domain_id) as context:
@@ -782,6 +831,10 @@ def markdown(results):
             ('Floor: the same messages answered at once by an echo node (ms)', 'floor',
              ('bodies', 'poses', 'statics', 'rate_hz', 'answered', 'latency_ms_median',
               'latency_ms_p99', 'latency_ms_max')),
+            ("Tick: the node's input callback in one process, warm, back to back (µs; "
+             'stages: medians)', 'tick',
+             ('scene', 'bodies', 'inputs', 'us_per_input', 'parse_us', 'broad_us', 'narrow_us',
+              'output_us', 'publish_us', 'total_us')),
             ('Output: the cloud as bytes vs as a message object (ms)', 'output',
              ('bodies', 'contacts', 'bytes_write_ms', 'bytes_publish_ms', 'message_write_ms',
               'message_publish_ms')),
@@ -868,6 +921,9 @@ def main(args=None):
         progress(arm_target_line(results['arm']))
     if 'floor' in sections:
         results['floor'] = floor_section(plan, options.statics, options.domain_id, progress)
+    if 'tick' in sections:
+        results['tick'] = tick_section(plan, options.domain_id)
+        progress('tick done')
     if 'output' in sections:
         results['output'] = output_section(plan, options.domain_id)
         progress('output done')
