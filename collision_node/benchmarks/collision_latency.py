@@ -600,7 +600,7 @@ def tick_ms(context, case, ticks):
 
 
 def tick_section(plan, domain_id):
-    """The node's tick in this process, warm, inputs back to back: µs per input and stage.
+    """Time the node's tick in this process, warm, inputs back to back: µs per input, stages.
 
     The node's input callback (CollisionNode._check) on pre-serialised PoseArrays: parse and
     checks, World.step, the cloud written, the bytes handed to rclpy (no subscriber), the
