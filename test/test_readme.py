@@ -63,6 +63,12 @@ def test_python_api_snippet():
     result = namespace['result']
     assert result.stats['dynamic_bodies'] == 40
     assert len(result.contacts) == result.stats['colliding_pairs'] > 0
+    # The snippet's first state is the step's input: the same rows, with 'state' 0 first.
+    batch = namespace['batch'].contacts
+    assert batch.dtype.names == ('state',) + result.contacts.dtype.names
+    first = batch[batch['state'] == 0]
+    for name in result.contacts.dtype.names:
+        np.testing.assert_array_equal(first[name], result.contacts[name])
 
 
 def test_cloud_snippet_reads_a_real_cloud():
