@@ -6,6 +6,7 @@ axis-aligned boxes, and from a brute-force World for the larger scene.
 """
 import os
 import random
+import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
@@ -20,6 +21,7 @@ from collision_node.pipeline import scenes
 from collision_node.pipeline.world import DYNAMIC, World
 from collision_node.ros.cdr import serialize_pose_array
 from collision_node.ros.messages import cloud_to_contacts
+from collision_node.ros.node import MARKER_PERIOD_S
 
 DOMAIN_ID = random.Random(os.getpid() + 1).randint(1, 200)
 
@@ -257,6 +259,7 @@ def test_markers_only_while_subscribed(harness):
 
     room.subscribe_markers()
     room.wait_for(lambda: room.markers.get_publisher_count() == 1)
+    time.sleep(MARKER_PERIOD_S)  # the node asks for subscribers at most once a period
     room.publish(poses, sec=2)
     room.answer(2)
     room.wait_for(lambda: room.marker_arrays, 'markers')
