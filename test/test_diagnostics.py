@@ -8,6 +8,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 import pytest
 
+from collision_node.pipeline.world import Result
 from collision_node.ros.diagnostics import ERROR, Monitor, OK, STAGES, WARN
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -16,6 +17,7 @@ WORLD_STATS = {'broad_phase': 'sphere', 'dynamic_bodies': 5, 'static_bodies': 2,
                'colliding_pairs': 2, 'reused': False, 'filtered_pairs': 6, 'near_pairs': 1,
                'min_distance': -0.0125, 'min_distance_pair': (3, 0, 1, 1), 'continuous': 'on',
                'swept_pairs': 1, 'unresolved_pairs': 0}
+WORLD = Result(None, WORLD_STATS)  # a general-path step's result: its stats given
 REQUIRED_KEYS = ['broad_phase', 'dynamic_bodies', 'static_bodies', 'still_bodies',
                  'candidate_pairs', 'sat_tests', 'colliding_pairs', 'compared', 'ticks', 'rate_hz',
                  'dropped_inputs', 'rejected_inputs', 'last_rejection', 'filtered_pairs',
@@ -30,7 +32,7 @@ def test_continuous_fallbacks_are_counted_and_said():
     monitor = Monitor(0.0)
     reason = 'discrete (pose count changed from 5 to 6)'
     for mode in ('on', reason, 'on', 'discrete (no previous input)', 'off'):
-        monitor.tick(0.5, [1.0] * 6, dict(WORLD_STATS, continuous=mode))
+        monitor.tick(0.5, [1.0] * 6, Result(None, dict(WORLD_STATS, continuous=mode)))
         if mode == reason:
             values = dict(monitor.report(0.6, input_timeout_s=5.0)[2])
             assert values['continuous'] == reason
@@ -55,7 +57,7 @@ def test_report_has_every_key_and_the_world_stats():
     monitor = Monitor(0.0)
     monitor.received()
     monitor.tick(0.5, [1.0, 2.0, 3.0, 0.5, 3.5, 10.0],
-                 dict(WORLD_STATS, broad_phase_stats={'builds': 1}))
+                 Result(None, dict(WORLD_STATS, broad_phase_stats={'builds': 1})))
     level, message, values = monitor.report(1.0, input_timeout_s=5.0)
     values = dict(values)
     assert set(REQUIRED_KEYS) <= set(values)
@@ -72,7 +74,8 @@ def test_report_has_every_key_and_the_world_stats():
     assert (values['filtered_pairs'], values['near_pairs']) == ('6', '1')
     assert (values['min_distance'], values['min_distance_pair']) == ('-0.0125', 'd3-s1')
     monitor.tick(0.7, [1.0] * 6,
-                 dict(WORLD_STATS, min_distance=float('nan'), min_distance_pair=None))
+                 Result(None, dict(WORLD_STATS, min_distance=float('nan'),
+                                   min_distance_pair=None)))
     values = dict(monitor.report(1.0, input_timeout_s=5.0)[2])
     assert values['min_distance'] == values['min_distance_pair'] == ''  # nothing reported
 
@@ -83,7 +86,7 @@ def test_stage_statistics_over_the_period():
     monitor = Monitor(0.0)
     for row in times:
         monitor.received()
-        monitor.tick(1.0, row, WORLD_STATS)
+        monitor.tick(1.0, row, WORLD)
     values = dict(monitor.report(10.0, input_timeout_s=0.0)[2])
     for column, stage in enumerate(STAGES):
         samples = times[:, column].tolist()
@@ -100,7 +103,7 @@ def test_more_ticks_than_samples_keeps_the_newest_and_the_true_max():
     monitor = Monitor(0.0, samples=8)
     totals = [100.0] + [float(i) for i in range(1, 20)]  # the slow one is pushed out
     for total in totals:
-        monitor.tick(0.0, [0.0, 0.0, 0.0, 0.0, 0.0, total], WORLD_STATS)
+        monitor.tick(0.0, [0.0, 0.0, 0.0, 0.0, 0.0, total], WORLD)
     values = dict(monitor.report(1.0, input_timeout_s=0.0)[2])
     newest = totals[-8:]
     assert float(values['total_ms_median']) == nearest_rank(newest, 0.5)
@@ -111,7 +114,7 @@ def test_more_ticks_than_samples_keeps_the_newest_and_the_true_max():
 
 def test_a_new_period_starts_after_each_report():
     monitor = Monitor(0.0)
-    monitor.tick(0.1, [5.0] * len(STAGES), WORLD_STATS)
+    monitor.tick(0.1, [5.0] * len(STAGES), WORLD)
     monitor.report(1.0, input_timeout_s=0.0)
     values = dict(monitor.report(2.0, input_timeout_s=0.0)[2])
     assert values['ticks'] == '0' and float(values['total_ms_max']) == 0.0
@@ -122,11 +125,11 @@ def test_a_new_period_starts_after_each_report():
 def test_rejection_warns_for_one_period_and_is_remembered():
     monitor = Monitor(0.0)
     monitor.rejected('input frame_id map is not world')
-    monitor.tick(0.5, [1.0] * len(STAGES), WORLD_STATS)
+    monitor.tick(0.5, [1.0] * len(STAGES), WORLD)
     level, message, values = monitor.report(1.0, input_timeout_s=5.0)
     assert level == WARN and 'frame_id map' in message
     assert dict(values)['rejected_inputs'] == '1'
-    monitor.tick(1.5, [1.0] * len(STAGES), WORLD_STATS)
+    monitor.tick(1.5, [1.0] * len(STAGES), WORLD)
     level, _, values = monitor.report(2.0, input_timeout_s=5.0)
     assert level == OK
     assert dict(values)['rejected_inputs'] == '1'  # a total since the start
@@ -137,24 +140,24 @@ def test_tick_slower_than_the_input_period_warns():
     monitor = Monitor(0.0)
     for _ in range(10):  # 10 inputs in 1 s: a 100 ms input period
         monitor.received()
-        monitor.tick(0.9, [0.0, 0.0, 0.0, 0.0, 0.0, 50.0], WORLD_STATS)
+        monitor.tick(0.9, [0.0, 0.0, 0.0, 0.0, 0.0, 50.0], WORLD)
     assert monitor.report(1.0, input_timeout_s=5.0)[0] == OK
     for total in (50.0, 150.0):  # 2 inputs in 1 s: a 500 ms input period
         monitor.received()
-        monitor.tick(1.9, [0.0, 0.0, 0.0, 0.0, 0.0, total], WORLD_STATS)
+        monitor.tick(1.9, [0.0, 0.0, 0.0, 0.0, 0.0, total], WORLD)
     assert monitor.report(2.0, input_timeout_s=5.0)[0] == OK
     for _ in range(20):
         monitor.received()
-    monitor.tick(2.9, [0.0, 0.0, 0.0, 0.0, 0.0, 60.0], WORLD_STATS)  # 20 inputs in 1 s: 50 ms
+    monitor.tick(2.9, [0.0, 0.0, 0.0, 0.0, 0.0, 60.0], WORLD)  # 20 inputs in 1 s: 50 ms
     level, message, _ = monitor.report(3.0, input_timeout_s=5.0)
     assert level == WARN and 'longer than the input period' in message
     monitor.received()
     monitor.received()
     monitor.dropped(18)  # 20 inputs sent in 1 s, 18 of them overwritten before a tick
-    monitor.tick(3.9, [0.0, 0.0, 0.0, 0.0, 0.0, 60.0], WORLD_STATS)
+    monitor.tick(3.9, [0.0, 0.0, 0.0, 0.0, 0.0, 60.0], WORLD)
     level, message, _ = monitor.report(4.0, input_timeout_s=5.0)
     assert level == WARN and 'input period 50 ms' in message
-    monitor.tick(4.5, [0.0, 0.0, 0.0, 0.0, 0.0, 150.0], WORLD_STATS)  # a timer ticking at 10 Hz
+    monitor.tick(4.5, [0.0, 0.0, 0.0, 0.0, 0.0, 150.0], WORLD)  # a timer ticking at 10 Hz
     level, message, _ = monitor.report(5.0, input_timeout_s=5.0, tick_period_s=0.1)
     assert level == WARN and 'longer than the input period' in message
 
@@ -166,7 +169,7 @@ def test_no_valid_input_is_an_error_unless_disabled():
     assert level == ERROR and 'no valid input' in message
     monitor.rejected('garbage')  # a rejected input is not a valid one
     assert monitor.report(11.5, input_timeout_s=1.0)[0] == ERROR
-    monitor.tick(11.6, [1.0] * len(STAGES), WORLD_STATS)
+    monitor.tick(11.6, [1.0] * len(STAGES), WORLD)
     assert monitor.report(12.0, input_timeout_s=1.0)[0] == OK
     assert monitor.report(60.0, input_timeout_s=0.0)[0] == OK
 
@@ -174,7 +177,7 @@ def test_no_valid_input_is_an_error_unless_disabled():
 def test_no_valid_input_names_the_rejected_ones():
     monitor = Monitor(0.0)
     monitor.rejected('frame_id map')
-    monitor.tick(0.5, [1.0] * len(STAGES), WORLD_STATS)  # a valid input: the count restarts
+    monitor.tick(0.5, [1.0] * len(STAGES), WORLD)  # a valid input: the count restarts
     assert monitor.report(1.0, input_timeout_s=5.0)[:2] == (
         WARN, '1 inputs rejected, last: frame_id map')
     for body in (3, 1, 1):
@@ -182,7 +185,7 @@ def test_no_valid_input_names_the_rejected_ones():
     assert monitor.report(6.5, input_timeout_s=5.0)[:2] == (
         ERROR, 'no valid input for 6 s; 3 inputs rejected, last: dynamic body 1: pose has a NaN '
         'or Inf value')
-    monitor.tick(7.0, [1.0] * len(STAGES), WORLD_STATS)
+    monitor.tick(7.0, [1.0] * len(STAGES), WORLD)
     assert monitor.report(13.0, input_timeout_s=5.0)[:2] == (ERROR, 'no valid input for 6 s')
 
 

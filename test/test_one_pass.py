@@ -146,6 +146,25 @@ def test_stats_are_built_only_when_read():
     assert contacts is result.contacts and unpacked is stats
 
 
+def test_phase_times_and_continuous_mode_agree_with_the_stats_they_skip():
+    """What the node reads on every input, without building a small scene's stats."""
+    extents = scenes.arm().dynamic_half_extents
+    general = World(broad_phase='sweep_and_prune', margin=0.05)
+    swept = World(continuous=True)
+    for world in (arm_world(), general, swept):
+        for poses in (arm_states(3)[1], arm_states(3)[1], arm_states(3)[2]):  # one reused
+            fresh = world.step(poses, extents)
+            answered = fresh.phase_ms, fresh.continuous  # read before the stats are built
+            stats = fresh.stats
+            assert answered[1] == stats['continuous']
+            if stats['reused']:
+                assert answered[0] is None
+            else:
+                assert answered[0] == (stats['prepare_ms'] + stats['broad_ms'],
+                                       stats['narrow_ms'])
+    assert swept.step(arm_states(3)[0], extents).continuous == 'on'
+
+
 def test_a_scene_that_grows_leaves_the_one_pass_and_comes_back(general_path):
     rng = np.random.default_rng(9)
     static_poses, static_extents, poses, extents = random_scene(rng, 20, 400, side=8.0)

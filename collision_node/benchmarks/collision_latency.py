@@ -67,7 +67,7 @@ from collision_node.benchmarks.robot import arm_states, arm_world
 from collision_node.pipeline import scenes
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import uniform, UNIFORM_HALF_EXTENTS
-from collision_node.pipeline.world import World
+from collision_node.pipeline.world import Result, World
 from collision_node.ros import diagnostics
 from collision_node.ros.cdr import ENCAPSULATION_SIZE, serialize_pose_array
 from collision_node.ros.memory import keep_heap_memory
@@ -656,12 +656,12 @@ def skips_section(plan, domain_id):
 def diagnostics_cost():
     """µs per Monitor.tick, and ms per report with a full ring of samples."""
     monitor = diagnostics.Monitor(0.0)
-    stats = dict.fromkeys(diagnostics.WORLD_KEYS, 0)
-    stage_ms = np.linspace(0.1, 1.0, len(diagnostics.STAGES))
+    result = Result(None, dict.fromkeys(diagnostics.WORLD_KEYS, 0))
+    stage_ms = tuple(np.linspace(0.1, 1.0, len(diagnostics.STAGES)))
     count = 20000
     start = time.perf_counter()
     for k in range(count):
-        monitor.tick(k * 1e-3, stage_ms, stats)
+        monitor.tick(k * 1e-3, stage_ms, result)
     per_tick_us = 1e6 * (time.perf_counter() - start) / count
     start = time.perf_counter()
     monitor.report(count * 1e-3, 0.0)

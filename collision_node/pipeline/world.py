@@ -128,6 +128,22 @@ class Result:
         return self._stats
 
     @property
+    def continuous(self):
+        """Return ``stats["continuous"]`` without building them (a one pass is never swept)."""
+        return OFF if self._stats is None else self._stats['continuous']
+
+    @property
+    def phase_ms(self):
+        """Return (prepare + broad, narrow) ms without building the stats; None if reused."""
+        if self._stats is None:
+            total_ms, reused = self._counters[3], self._counters[5]
+            return None if reused else (0.0, total_ms)
+        stats = self._stats
+        if stats['reused']:
+            return None
+        return stats['prepare_ms'] + stats['broad_ms'], stats['narrow_ms']
+
+    @property
     def counters(self):
         """Return the one-pass counters the stats are built from (None: stats were given)."""
         return self._counters

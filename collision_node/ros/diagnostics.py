@@ -34,9 +34,11 @@ class Monitor:
 
     def __init__(self, start_s, samples=SAMPLES_PER_PERIOD):
         """Start counting at ``start_s`` (seconds on a monotonic clock)."""
-        self._times = np.zeros((samples, len(STAGES)))  # ms, ring buffer of the period's ticks
-        self._period_max = np.zeros(len(STAGES))
-        self._last = np.zeros(len(STAGES))
+        # Per tick, tuples in plain lists: a tick records without a numpy call (from a cold
+        # cache, as at 100 Hz, three small numpy calls took ~10 µs); report() makes the array.
+        self._times = [None] * samples  # ms, ring buffer of the period's ticks
+        self._period_max = (0.0,) * len(STAGES)
+        self._last = (0.0,) * len(STAGES)
         self._period_start = start_s
         self._ticks = 0             # this period
         self._received = 0          # this period: input messages that arrived
@@ -55,7 +57,7 @@ class Monitor:
         self._world['min_distance'] = ''       # m, signed, in the last tick ('' without pairs)
         self._world['min_distance_pair'] = ''  # as collision_monitor writes it: d3-s1
         self._phase_stats = {}  # the broad phase's own counters (octree leaves, sorts, ...)
-        self._last_stats = None  # the last tick's World stats, not yet read into _world
+        self._last_result = None  # the last tick's World result, not yet read into _world
         self._scene_version = 0
         self._static_ids = ''  # name:id of every static collider, in static_colliders order
         self._ignored = 0        # this period: inputs that came while the node was not active
@@ -116,23 +118,28 @@ class Monitor:
         self._rejected_since_valid += 1
         self._last_rejection = reason
 
-    def tick(self, now_s, stage_ms, world_stats):
-        """Record a processed input: its stage times (ms, in STAGES order) and World stats."""
-        row = self._ticks % len(self._times)
-        self._times[row] = stage_ms
-        self._last[:] = stage_ms
-        np.maximum(self._period_max, self._last, out=self._period_max)
+    def tick(self, now_s, stage_ms, result):
+        """Record a processed input: its stage times (ms, in STAGES order) and World result.
+
+        ``result``: the World's Result (its ``continuous`` mode is read now, its ``stats``,
+        which a small scene's step builds only when read, by the next report).
+        """
+        stage_ms = tuple(stage_ms)
+        self._times[self._ticks % len(self._times)] = stage_ms
+        self._last = stage_ms
+        self._period_max = tuple(map(max, self._period_max, stage_ms))
         self._ticks += 1
         self._last_valid_s = now_s
         self._rejected_since_valid = 0
-        self._discrete_ticks += str(world_stats['continuous']).startswith(DISCRETE_FALLBACK)
-        self._last_stats = world_stats  # report() reads the last tick's: a tick copies nothing
+        self._discrete_ticks += str(result.continuous).startswith(DISCRETE_FALLBACK)
+        self._last_result = result
 
     def _read_last_stats(self):
         """Take the World stats of the last tick, if one came since, into the report's values."""
-        world_stats, self._last_stats = self._last_stats, None
-        if world_stats is None:
+        result, self._last_result = self._last_result, None
+        if result is None:
             return
+        world_stats = result.stats
         for key in WORLD_KEYS:
             self._world[key] = world_stats[key]
         self._world['reused_result'] = world_stats.get('reused', False)
@@ -155,7 +162,7 @@ class Monitor:
         input_period = tick_period_s or (elapsed / inputs if inputs else 0.0)
         self._read_last_stats()
         count = min(self._ticks, len(self._times))
-        times = self._times[:count]
+        times = np.array(self._times[:count], np.float64)
         if count:  # 'higher': a reported percentile is always a time some tick really took
             median, p99 = np.percentile(times, (50.0, 99.0), axis=0, method='higher')
         else:
@@ -207,7 +214,7 @@ class Monitor:
         self._period_start = now_s
         self._ticks = self._received = self._dropped = self._rejected = self._ignored = 0
         self._state_requests = self._states = 0
-        self._period_max[:] = 0.0
+        self._period_max = (0.0,) * len(STAGES)
         return level, message, values
 
     def _rejections(self, count):

@@ -463,16 +463,13 @@ class CollisionNode(LifecycleNode):
             output_ms += 1e3 * self._publish_markers(message, result, now)
         done = time.perf_counter()
 
-        stats = result.stats
-        parse_ms = 1e3 * (checked - start)
-        if stats['reused']:  # the World answered from its last result: no phase ran
-            broad_ms, narrow_ms = 1e3 * (stepped - checked), 0.0
-        else:
-            broad_ms = stats['prepare_ms'] + stats['broad_ms']
-            narrow_ms = stats['narrow_ms']
+        # Not result.stats: a small scene's step builds them only when read (by the report).
+        phase_ms = result.phase_ms
+        if phase_ms is None:  # the World answered from its last result: no phase ran
+            phase_ms = 1e3 * (stepped - checked), 0.0
         publish_ms = 1e3 * (done - stepped) - output_ms
-        self._monitor.tick(now, (parse_ms, broad_ms, narrow_ms, output_ms, publish_ms,
-                                 1e3 * (done - start)), stats)
+        self._monitor.tick(now, (1e3 * (checked - start), *phase_ms, output_ms, publish_ms,
+                                 1e3 * (done - start)), result)
 
     def _publish_markers(self, message, result, now):
         """Publish the markers if someone subscribes; return the seconds spent writing them.
