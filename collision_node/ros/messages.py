@@ -110,10 +110,16 @@ class CloudWriter:
 
     def serialize(self, contacts, sec, nanosec, frame_id):
         """Return :func:`serialize_collisions`'s bytes (this writer's cloud)."""
-        contacts, cloud_dtype = _checked_contacts(contacts)
-        if cloud_dtype != self._cloud_dtype:
-            raise ValueError('contacts with fields %s, this writer writes %s'
-                             % (contacts.dtype.names, self._cloud_dtype.names))
+        # The World's own contacts skip the field-by-field check: their dtype is the one this
+        # writer was made for (about 40 Python steps less on every input).
+        native = isinstance(contacts, np.ndarray) and contacts.ndim == 1 \
+            and contacts.dtype == self._contact_dtype
+        if not native:
+            contacts, cloud_dtype = _checked_contacts(contacts)
+            if cloud_dtype != self._cloud_dtype:
+                raise ValueError('contacts with fields %s, this writer writes %s'
+                                 % (contacts.dtype.names, self._cloud_dtype.names))
+        cloud_dtype = self._cloud_dtype
         count = len(contacts)
         head = self._head_bytes(frame_id)
         size = len(head) + cloud_dtype.itemsize * count + len(_TAIL)
@@ -132,7 +138,7 @@ class CloudWriter:
         struct.pack_into('<II', buffer, len(head) - 8, cloud_dtype.itemsize * count,
                          cloud_dtype.itemsize * count)
         points = buffer[len(head):size - len(_TAIL)].view(cloud_dtype)
-        if contacts.dtype == self._contact_dtype and contacts.flags.c_contiguous:
+        if native and contacts.flags.c_contiguous:
             row_words = contacts.dtype.itemsize // 4
             point_words = cloud_dtype.itemsize // 4
             _narrow_contacts(contacts.view(np.float64).reshape(count, row_words // 2),
