@@ -293,14 +293,11 @@ def test_robot_section_times_every_method_and_compares_its_answers(tiny_run):
     ours = rows[robot.OURS_STEP]
     assert ours['states'] == plan.robot_states * plan.robot_rounds
     assert ours['per_state_us'] > 0 and ours['pairs_per_state'] > 0
-    if hasattr(World, 'check_states'):
-        batch = rows[robot.OURS_BATCH]
-        assert batch['states_per_call'] == plan.robot_batch_states
-        assert batch['compared_states'] == batch['states'] == (plan.robot_batch_states
-                                                               * plan.robot_rounds)
-        assert batch['same_answers']
-    else:
-        assert rows[robot.OURS_BATCH]['skipped'] == robot.CHECK_STATES_MISSING
+    batch = rows[robot.OURS_BATCH]
+    assert batch['states_per_call'] == plan.robot_batch_states
+    assert batch['compared_states'] == batch['states'] == (plan.robot_batch_states
+                                                           * plan.robot_rounds)
+    assert batch['same_answers']
     for name, hint in PEERS.items():
         row = rows[name]
         if 'skipped' in row:

@@ -10,7 +10,7 @@ state with ours:
 * ours, one state per call: a World set up as config/arm.yaml (brute force, margin 0.05 m,
   the shelf's own 0.05 m, the ignored pairs), ``World.step(poses, half_extents)``;
 * ours, K states per call: ``World.check_states(states, half_extents)``, timed per call and
-  divided by K (reported as not available where the World has no such method);
+  divided by K;
 * python-fcl: ``fcl.distance`` on each allowed pair in a Python loop, reported when at most
   the pair's margin (colliding pairs have a distance <= 0);
 * coal: a ``coal.ComputeCollision`` per allowed pair, called in a Python loop with the pair's
@@ -34,6 +34,7 @@ peer's pairs differ from ours is counted; each differing pair's exact distance
 python-fcl, coal and MuJoCo are benchmark-only dependencies (the ``bench`` extra): each one
 missing is reported as not installed and skipped.
 """
+import importlib
 import itertools
 import time
 
@@ -58,8 +59,6 @@ WARM_STATES = 10  # untimed calls of each method before its first timed round
 MUJOCO_HINT = 'MuJoCo not installed (benchmark-only dependency: pip install mujoco)'
 COAL_HINT = 'coal not installed (benchmark-only dependency: pip install coal)'
 FCL_HINT = 'python-fcl not installed (benchmark-only dependency: pip install python-fcl)'
-CHECK_STATES_MISSING = ('World.check_states is not in this build (issue 31: pending); '
-                        'no stand-in is timed')
 
 OURS_STEP = 'collision_node World.step'
 OURS_BATCH = 'collision_node World.check_states'
@@ -198,6 +197,14 @@ class Unavailable(Exception):
     """A method that cannot run here (a library not installed, a method not in this build)."""
 
 
+def _library(name, hint):
+    """Import a benchmark-only library, or raise Unavailable saying how to install it."""
+    try:
+        return importlib.import_module(name)
+    except ImportError:
+        raise Unavailable(hint) from None
+
+
 class Method:
     """One way to answer the arm's question; one state per call unless ``batch``.
 
@@ -241,8 +248,6 @@ class OursBatch(Method):
              'one call; per state = the call / K')
 
     def __init__(self):
-        if not hasattr(World, 'check_states'):
-            raise Unavailable(CHECK_STATES_MISSING)
         self.world = arm_world()
         self.half_extents = scenes.arm().dynamic_half_extents
 
@@ -268,11 +273,7 @@ class Fcl(Method):
              "them on every call); the distance is the call's return value")
 
     def __init__(self):
-        try:
-            import fcl
-        except ImportError:
-            raise Unavailable(FCL_HINT)
-        self._fcl = fcl
+        self._fcl = fcl = _library('fcl', FCL_HINT)
         scene = scenes.arm()
         links = [self._object(pose, half) for pose, half in zip(
             arm_states(1)[0], scene.dynamic_half_extents)]
@@ -312,11 +313,7 @@ class Coal(Method):
              "`security_margin` is the pair's margin")
 
     def __init__(self):
-        try:
-            import coal
-        except ImportError:
-            raise Unavailable(COAL_HINT)
-        self._coal = coal
+        self._coal = coal = _library('coal', COAL_HINT)
         scene = scenes.arm()
         links = [coal.Box(*(2.0 * half)) for half in scene.dynamic_half_extents]
         statics = [coal.Box(*(2.0 * half)) for half in scene.static_half_extents]
@@ -407,11 +404,7 @@ def mujoco_model(mujoco, meshes):
 class MuJoCo(Method):
 
     def __init__(self, meshes):
-        try:
-            import mujoco
-        except ImportError:
-            raise Unavailable(MUJOCO_HINT)
-        self._mujoco = mujoco
+        self._mujoco = mujoco = _library('mujoco', MUJOCO_HINT)
         self.name = MUJOCO_MESH if meshes else MUJOCO_BOX
         self.setup = (
             'MuJoCo %s: links as bodies with a free joint, colliders as world geoms (the '
