@@ -26,21 +26,19 @@ CAP_DAC_READ_SEARCH = 2
 
 NO_COMPILE_CHECK = """
 import sys
-import numba
 import numpy as np
 import rclpy
 from rclpy.parameter import Parameter
 from collision_node.pipeline import scenes
+from collision_node.pipeline._jit import KERNELS
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.ros.cdr import serialize_pose_array
 from collision_node.ros.node import CollisionNode
 
 
-def compiled():
-    return {(module, name): len(item.overloads)
-            for module, loaded in list(sys.modules.items()) if module.startswith('collision_node')
-            for name, item in vars(loaded).items()
-            if isinstance(item, numba.core.registry.CPUDispatcher)}
+def compiled():  # every kernel of the package (pipeline._jit.KERNELS): its compiled types
+    return {(kernel.py_func.__module__, kernel.py_func.__name__): len(kernel.overloads)
+            for kernel in KERNELS}
 
 
 rclpy.init(domain_id=%d)

@@ -275,18 +275,15 @@ def test_check_states_refuses_bad_input_naming_the_state_and_body():
 
 
 NO_COMPILE = """
-import sys
-import numba
 import numpy as np
 from collision_node import warm_up, World
 from collision_node.pipeline import scenes
+from collision_node.pipeline._jit import KERNELS
 from collision_node.pipeline.contacts import DYNAMIC, STATIC
 
-def compiled():
-    return {(module, name): len(item.overloads)
-            for module, loaded in list(sys.modules.items()) if module.startswith('collision_node')
-            for name, item in vars(loaded).items()
-            if isinstance(item, numba.core.registry.CPUDispatcher)}
+def compiled():  # every kernel of the package (pipeline._jit.KERNELS): its compiled types
+    return {(kernel.py_func.__module__, kernel.py_func.__name__): len(kernel.overloads)
+            for kernel in KERNELS}
 
 warm_up()
 before = compiled()
