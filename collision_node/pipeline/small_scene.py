@@ -162,6 +162,8 @@ def _check_states(poses, bodies, half_extents, n_static, statics, centers, rotat
     call numba does not inline reference-counts every array it is handed.
     """
     most = bodies * (bodies - 1) // 2 + bodies * len(statics)  # pairs of one state
+    # Allocated here on every call, not kept by the World: handed in from Python as kept
+    # arrays, these nine cost more to unbox than to allocate (the arm's step: 6.1 µs, not 5.5).
     pairs = np.empty((most, 2), np.int64)
     owner = np.empty(most, np.int64)  # a candidate's body a
     which = np.empty(most, np.int64)  # and its b: j as the pass visits them
