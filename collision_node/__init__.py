@@ -8,23 +8,26 @@ The package is layered; each layer imports only the ones above it in this list:
   diagnostics);
 - :mod:`collision_node.benchmarks` and :mod:`collision_node.tools`: the command-line programs.
 
-The names below are the public API. ``cloud_to_contacts`` and ``serialize_pose_array`` are
-imported on first use, so ``from collision_node import World`` never loads ROS.
+The names below are the public API, each imported on first use: ``from collision_node import
+World`` never loads ROS, and importing a submodule (a console script's entry) loads nothing.
 """
 import importlib
 
-from collision_node.pipeline.warm_up import warm_up
-from collision_node.pipeline.world import CONTACT_DTYPE, DYNAMIC, Result, STATIC, World
-
-_ROS_NAMES = {
+_NAMES = {  # imported on first use: importing a submodule never loads numba or ROS
+    'CONTACT_DTYPE': 'collision_node.pipeline.world',
+    'DYNAMIC': 'collision_node.pipeline.world',
+    'Result': 'collision_node.pipeline.world',
+    'STATIC': 'collision_node.pipeline.world',
+    'World': 'collision_node.pipeline.world',
+    'warm_up': 'collision_node.pipeline.warm_up',
     'cloud_to_contacts': 'collision_node.ros.messages',
     'serialize_pose_array': 'collision_node.ros.cdr',
 }
 
-__all__ = ['CONTACT_DTYPE', 'DYNAMIC', 'Result', 'STATIC', 'World', 'warm_up', *_ROS_NAMES]
+__all__ = sorted(_NAMES)
 
 
 def __getattr__(name):
-    if name in _ROS_NAMES:
-        return getattr(importlib.import_module(_ROS_NAMES[name]), name)
+    if name in _NAMES:
+        return getattr(importlib.import_module(_NAMES[name]), name)
     raise AttributeError('module %r has no attribute %r' % (__name__, name))

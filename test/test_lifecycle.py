@@ -31,8 +31,8 @@ from sensor_msgs.msg import PointCloud2
 from collision_node.benchmarks.params_files import write_scene_files
 from collision_node.pipeline.world import DYNAMIC, STATIC, World
 from collision_node.ros.cdr import serialize_pose_array
+from collision_node.ros.lifetime import spin_until
 from collision_node.ros.messages import cloud_to_contacts
-from collision_node.ros.node import spin_until_finalized
 from collision_node.tools.processes import stop_process
 
 DOMAIN_ID = random.Random(os.getpid() + 32).randint(1, 200)
@@ -252,7 +252,7 @@ def test_main_loop_answers_until_shutdown_and_keeps_nothing_per_message(harness)
             room.node.trigger_shutdown()
 
     room.peer.create_timer(0.001, publish_or_shut_down)
-    spin_until_finalized(room.node, room.executor)  # main()'s loop; returns on finalized
+    spin_until(room.executor, room.node, room.node.finalized)  # main()'s loop
     assert room.node.finalized.done() and room.node._world is None  # the shutdown ran whole
     assert len(room.clouds) > 0
     # rclpy.spin_until_future_complete would hold one more at every wake-up of the executor.

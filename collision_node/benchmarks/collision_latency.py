@@ -57,8 +57,9 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from rclpy.task import Future
 from sensor_msgs.msg import PointCloud2
 
 from collision_node.benchmarks.params_files import (scene_parameters, write_params_file,
@@ -68,8 +69,10 @@ from collision_node.pipeline import scenes
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import uniform, UNIFORM_HALF_EXTENTS
 from collision_node.pipeline.world import Result, World
+from collision_node.programs import child_command
 from collision_node.ros import diagnostics
 from collision_node.ros.cdr import ENCAPSULATION_SIZE, serialize_pose_array
+from collision_node.ros.lifetime import RosProgram
 from collision_node.ros.memory import keep_heap_memory
 from collision_node.ros.messages import CloudWriter, contacts_to_cloud
 from collision_node.ros.node import CollisionNode, INPUT_QOS, OUTPUT_QOS  # the node's own QoS
@@ -238,8 +241,7 @@ def start_node(params_path, domain_id, cache_dir=None, command=None):
         env['NUMBA_CACHE_DIR'] = cache_dir
     log = tempfile.TemporaryFile('w+')
     if command is None:
-        command = [sys.executable, '-m', 'collision_node.ros.node', '--ros-args', '--params-file',
-                   params_path]
+        command = child_command('collision_node', '--ros-args', '--params-file', params_path)
     process = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
     return process, log
 
@@ -253,22 +255,21 @@ def run_echo(cloud_path, namespace=''):
     keep_heap_memory()
     with open(cloud_path, 'rb') as source:
         cloud = bytearray(source.read())
-    rclpy.init()
-    node = rclpy.create_node('collision_echo', namespace=namespace)
-    publisher = node.create_publisher(PointCloud2, 'collisions', OUTPUT_QOS)
 
-    def answer(data):
-        cloud[STAMP_OFFSET:STAMP_OFFSET + 8] = data[STAMP_OFFSET:STAMP_OFFSET + 8]
-        publisher.publish(bytes(cloud))
+    def make_echo():
+        node = rclpy.create_node('collision_echo', namespace=namespace)
+        publisher = node.create_publisher(PointCloud2, 'collisions', OUTPUT_QOS)
 
-    node.create_subscription(PoseArray, 'dynamic_poses', answer, INPUT_QOS, raw=True)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+        def answer(data):
+            cloud[STAMP_OFFSET:STAMP_OFFSET + 8] = data[STAMP_OFFSET:STAMP_OFFSET + 8]
+            publisher.publish(bytes(cloud))
+
+        node.create_subscription(PoseArray, 'dynamic_poses', answer, INPUT_QOS, raw=True)
+        return node
+
+    with RosProgram() as program:  # as the node's main: the same executor, the same exit
+        program.start(make_echo)
+        program.spin_until(Future())  # until SIGINT or SIGTERM
 
 
 def stop_node(process, log):

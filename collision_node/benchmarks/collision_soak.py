@@ -31,7 +31,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import PointCloud2
@@ -39,6 +39,7 @@ from sensor_msgs.msg import PointCloud2
 from collision_node.benchmarks.params_files import scene_parameters, write_params_file
 from collision_node.pipeline.scenes import make_scene, SCENES
 from collision_node.ros.cdr import ENCAPSULATION_SIZE, serialize_pose_array
+from collision_node.ros.lifetime import ending_on_shutdown
 from collision_node.ros.node import INPUT_QOS  # the node's own input QoS
 from collision_node.tools.processes import stop_process
 
@@ -106,6 +107,7 @@ class Soak:
         self.frames = frames
         self.rate_hz = rate_hz
         self.pid = pid
+        self.context = node.context
         self.publisher = node.create_publisher(PoseArray, 'dynamic_poses', INPUT_QOS)
         node.create_subscription(PointCloud2, 'collisions', self.on_collisions, OUTPUT_QOS,
                                  raw=True)
@@ -135,7 +137,12 @@ class Soak:
 
         The first frame goes out alone, and the rest only once it is answered: the node
         counts the inputs it missed from the sequence numbers after the first one it got.
+        A shutdown signal (rclpy's context shut down) ends the loop quietly.
         """
+        with ending_on_shutdown(self.context):
+            self._publish_loop()
+
+    def _publish_loop(self):
         while self.publisher.get_subscription_count() == 0:
             if self.stop_publishing.wait(0.05):
                 return
@@ -319,35 +326,36 @@ def run(options, args):
     publisher.start()
     ready_s = None
     try:
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        while soak.first_answer_s is None and process.poll() is None \
-                and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-        ready_s = soak.first_answer_s
-        print('node ready (first answer) %.2f s after its start' % (ready_s or float('nan')),
-              flush=True)
-        run_start = time.monotonic()
-        end = run_start + options.duration
-        next_line = run_start + options.interval
-        previous = {'time': time.monotonic() - soak.start_s, 'ticks': soak.ticks}
-        while process.poll() is None and time.monotonic() < end and ready_s is not None \
-                and not (options.ticks and soak.ticks >= options.ticks):
-            executor.spin_once(timeout_sec=0.05)
-            if time.monotonic() >= next_line:
-                line, previous = soak.interval_line(previous)
-                print(line, flush=True)
-                next_line += options.interval
-        soak.stop_publishing.set()
-        publisher.join()
-        settle = time.monotonic() + SETTLE_TIMEOUT_S
-        while process.poll() is None and time.monotonic() < settle \
-                and soak.ticks + soak.dropped + soak.rejected < soak.sent:
-            executor.spin_once(timeout_sec=0.05)
-        for _ in range(int(2 * DIAGNOSTIC_PERIOD_S / 0.05)):  # one more period: late answers
-            executor.spin_once(timeout_sec=0.05)
-        line, previous = soak.interval_line(previous)
-        print(line, flush=True)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        with ending_on_shutdown(listener.context):  # SIGTERM: the summary of what ran
+            deadline = time.monotonic() + READY_TIMEOUT_S
+            while soak.first_answer_s is None and process.poll() is None \
+                    and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.05)
+            ready_s = soak.first_answer_s
+            print('node ready (first answer) %.2f s after its start' % (ready_s or float('nan')),
+                  flush=True)
+            run_start = time.monotonic()
+            end = run_start + options.duration
+            next_line = run_start + options.interval
+            previous = {'time': time.monotonic() - soak.start_s, 'ticks': soak.ticks}
+            while process.poll() is None and time.monotonic() < end and ready_s is not None \
+                    and not (options.ticks and soak.ticks >= options.ticks):
+                executor.spin_once(timeout_sec=0.05)
+                if time.monotonic() >= next_line:
+                    line, previous = soak.interval_line(previous)
+                    print(line, flush=True)
+                    next_line += options.interval
+            soak.stop_publishing.set()
+            publisher.join()
+            settle = time.monotonic() + SETTLE_TIMEOUT_S
+            while process.poll() is None and time.monotonic() < settle \
+                    and soak.ticks + soak.dropped + soak.rejected < soak.sent:
+                executor.spin_once(timeout_sec=0.05)
+            for _ in range(int(2 * DIAGNOSTIC_PERIOD_S / 0.05)):  # one more period: late answers
+                executor.spin_once(timeout_sec=0.05)
+            line, previous = soak.interval_line(previous)
+            print(line, flush=True)
+    except KeyboardInterrupt:
         print('interrupted', flush=True)
     finally:
         soak.stop_publishing.set()

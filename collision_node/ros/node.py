@@ -57,7 +57,6 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -76,6 +75,7 @@ from collision_node.pipeline.warm_up import warm_up
 from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import CdrError, parse_pose_array
+from collision_node.ros.lifetime import InitError, RosProgram
 from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.memory import keep_heap_memory
 from collision_node.ros.messages import CloudWriter
@@ -712,47 +712,21 @@ def compile_kernels():
     CloudWriter().serialize(contacts, 0, 0, '')  # the cloud's kernel
 
 
-def spin_until_finalized(node, executor=None):
-    """Run ``node``'s callbacks until its shutdown transition has run, or rclpy shuts down.
-
-    Not rclpy.spin_until_future_complete(node, node.finalized): rclpy 7 adds a callback to the
-    future on every wake-up of the executor, so a node running for days would keep one for
-    each message it ever took.
-    """
-    executor = executor or SingleThreadedExecutor(context=node.context)
-    executor.add_node(node)
-    try:
-        while executor.context.ok() and not node.finalized.done():
-            executor.spin_once()
-    finally:
-        executor.remove_node(node)
-
-
 def main(args=None):
     """Run the node until shutdown; exit with status 2 on a bad parameter under autostart.
 
-    Shutdown is Ctrl-C (SIGINT) or the lifecycle shutdown transition: a finalized node has
-    nothing left to do, so the process ends, with status 0, once the transition is answered.
+    Shutdown is SIGINT (Ctrl-C), SIGTERM or the lifecycle shutdown transition: a finalized
+    node has nothing left to do, so the process ends, with status 0, once the transition is
+    answered. A signal ends it with status 0 whenever it comes (collision_node.ros.lifetime).
     """
     keep_heap_memory()  # before the first large message: see collision_node.ros.memory
     try:
-        rclpy.init(args=args)
-    except RuntimeError as error:  # e.g. a params file rcl cannot parse
+        with RosProgram(args) as program:
+            node = program.start(CollisionNode)
+            program.spin_until(node.finalized)
+    except (InitError, params.ParameterError) as error:
         rclpy.logging.get_logger('collision_node').fatal(str(error))
         raise SystemExit(2) from None
-    node = None
-    try:
-        node = CollisionNode()
-        spin_until_finalized(node)
-    except params.ParameterError as error:
-        rclpy.logging.get_logger('collision_node').fatal(str(error))
-        raise SystemExit(2) from None
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
 
 
 if __name__ == '__main__':

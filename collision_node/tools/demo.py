@@ -15,15 +15,15 @@ import sys
 
 from ament_index_python.packages import get_package_share_directory, PackageNotFoundError
 from diagnostic_msgs.msg import DiagnosticArray
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
 from collision_node.pipeline.scenes import SCENE_BODY_COUNTS
+from collision_node.programs import child_command
 from collision_node.ros.diagnostics import LEVEL_NAMES, STATUS_SUFFIX
+from collision_node.ros.lifetime import RosProgram
 from collision_node.tools.processes import stop_process
 
 PACKAGE = 'collision_node'
@@ -102,15 +102,14 @@ def start_children(config, scene, bodies, rate):
     """Start the node and the pose publisher with this Python; return {name: Popen}."""
     # Own process groups: Ctrl-C reaches only the demo, which stops each child once, in order.
     commands = {
-        'collision_node': ['-m', 'collision_node.ros.node', '--ros-args', '--params-file', config],
-        'pose_publisher': ['-m', 'collision_node.tools.pose_publisher', '--scene', scene,
-                           '--bodies', str(bodies), '--rate', str(rate)],
+        'collision_node': child_command('collision_node', '--ros-args', '--params-file', config),
+        'pose_publisher': child_command('pose_publisher', '--scene', scene, '--bodies',
+                                        str(bodies), '--rate', str(rate)),
     }
     children = {}
     try:
         for name, command in commands.items():
-            children[name] = subprocess.Popen([sys.executable] + command,
-                                              start_new_session=True)
+            children[name] = subprocess.Popen(command, start_new_session=True)
             print('started %s (pid %d)' % (name, children[name].pid), flush=True)
     except OSError:
         stop_children(children)
@@ -164,24 +163,19 @@ def main(args=None):
     options = parse_arguments(remove_ros_args(args)[1:])
     print('collision_node on %s, scene %s with %d moving boxes at %g Hz; Ctrl-C stops'
           % (options.params_file, options.scene, options.bodies, options.rate), flush=True)
-    children = start_children(options.params_file, options.scene, options.bodies, options.rate)
-    code = 0
-    node = None
-    try:
-        rclpy.init(args=args)
-        node = Demo(children)
-        print('waiting for the first diagnostics (the node loads its numba kernels first)',
-              flush=True)
-        rclpy.spin_until_future_complete(node, node.finished, timeout_sec=options.duration)
-        code = node.finished.result() or 0
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        stop_children(children)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    children = {}
+    with RosProgram(args) as program:  # Ctrl-C or SIGTERM at any moment: status 0
+        try:
+            children.update(start_children(options.params_file, options.scene, options.bodies,
+                                           options.rate))
+            node = program.start(lambda: Demo(children))
+            print('waiting for the first diagnostics (the node loads its numba kernels first)',
+                  flush=True)
+            program.spin_until(node.finished, timeout_sec=options.duration)
+        finally:
+            stop_children(children)
+    finished = program.node.finished if program.node is not None else None
+    return (finished.result() or 0) if finished is not None and finished.done() else 0
 
 
 if __name__ == '__main__':

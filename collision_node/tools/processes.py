@@ -2,26 +2,21 @@
 import signal
 import subprocess
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
+from collision_node.ros.lifetime import RosProgram
 
 
 def spin_until_finished(args, make_node):
     """Init rclpy with ``args``, spin ``make_node()`` until its ``finished`` future is done.
 
-    Returns the future's result, or None when Ctrl-C or an external shutdown ended the spin
-    first (quietly). The node is destroyed and rclpy shut down either way.
+    Returns the future's result, or None when SIGINT or SIGTERM ended the program first
+    (quietly, status 0: collision_node.ros.lifetime). The node is destroyed and rclpy shut down
+    either way.
     """
-    rclpy.init(args=args)
-    node = make_node()
-    try:
-        rclpy.spin_until_future_complete(node, node.finished)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return node.finished.result() if node.finished.done() else None
+    with RosProgram(args) as program:
+        node = program.start(make_node)
+        program.spin_until(node.finished)
+    finished = program.node.finished if program.node is not None else None
+    return finished.result() if finished is not None and finished.done() else None
 
 
 def stop_process(process, timeout_s, on_timeout=lambda signal_name: None):

@@ -1,0 +1,117 @@
+"""A ROS program's life: init, start its node, spin, and end with status 0 on SIGINT or SIGTERM.
+
+rclpy's signal handler runs in C on SIGINT and SIGTERM, at any moment: it shuts the context
+down and wakes the executor. Whatever the program does next with that context raises
+``RCLError``: the wait set of a ``spin_once`` that began just after a ``context.ok()`` check,
+or a publish from a callback that was running when the signal came. No check before a call can
+close that window, so this module handles the outcome instead:
+
+- An error raised once the context is shut down is the shutdown's, not a fault: the program
+  ends quietly. An error while the context is valid is a real one and goes on up.
+- The process's signal latch (collision_node.ros.signal_latch) is installed before
+  ``rclpy.init``, which chains its handler to it: a signal while the node is being made (on a
+  cold numba cache, minutes of compiling) ends the start at once; later it raises nothing.
+"""
+import contextlib
+import time
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+from collision_node.ros.signal_latch import LATCH, Stopped
+
+
+class InitError(RuntimeError):
+    """rclpy.init refused the program's arguments (e.g. a params file rcl cannot parse)."""
+
+
+class RosProgram:
+    """One ROS program in ``main``: ``with RosProgram(args) as program:``.
+
+    ``program.start(make_node)`` inits rclpy with ``args`` and makes the node (a signal
+    meanwhile ends the start); ``program.spin_until(future)`` runs it. Leaving the block
+    destroys the node and shuts rclpy down; it swallows :class:`Stopped` and every error raised
+    after a shutdown signal, so the program exits with status 0 whenever SIGINT or SIGTERM
+    came.
+    """
+
+    def __init__(self, args=None):
+        self.args = args
+        self.node = None
+        self._initialised = False
+
+    def __enter__(self):
+        LATCH.install()
+        return self
+
+    def start(self, make_node):
+        """Init rclpy, return ``make_node()``; a shutdown signal meanwhile raises Stopped."""
+        LATCH.start()
+        try:
+            try:
+                rclpy.init(args=self.args)
+            except RuntimeError as error:
+                raise InitError(str(error)) from None
+            self._initialised = True
+            self.node = make_node()
+        finally:
+            LATCH.started()
+        return self.node
+
+    def spin_until(self, future, timeout_sec=None):
+        """Spin the node until ``future`` is done, ``timeout_sec`` passed or rclpy shut down."""
+        executor = SingleThreadedExecutor(context=self.node.context)
+        spin_until(executor, self.node, future, timeout_sec)
+
+    @property
+    def shut_down(self):
+        """Tell whether a shutdown signal came or the context was shut down."""
+        return LATCH.received is not None or (self._initialised and not rclpy.ok())
+
+    def __exit__(self, kind, error, traceback):
+        # Judged before this shutdown: an error while the context was valid is a real one.
+        quiet = kind is Stopped or (kind is not None and issubclass(kind, Exception)
+                                    and self.shut_down)
+        try:
+            if self.node is not None:
+                self.node.destroy_node()
+        except Exception:  # noqa: B902 - a destroy on a shut-down context may complain
+            if not self.shut_down:
+                raise
+        finally:
+            rclpy.try_shutdown()
+        return quiet
+
+
+def spin_until(executor, node, future, timeout_sec=None):
+    """Run ``node``'s callbacks on ``executor`` until ``future`` is done or rclpy shuts down.
+
+    Not rclpy.spin_until_future_complete: rclpy 7 adds a callback to the future on every
+    wake-up of the executor, so a node running for days would keep one for each message it
+    ever took. An error of a call that met a shut-down context ends the spin quietly (see the
+    module's docstring); any other goes on up.
+    """
+    deadline = None if timeout_sec is None else time.monotonic() + timeout_sec
+    executor.add_node(node)
+    try:
+        while not future.done() and executor.context.ok():
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0.0:
+                break
+            with ending_on_shutdown(executor.context):
+                executor.spin_once(timeout_sec=remaining)
+    finally:
+        with ending_on_shutdown(executor.context):
+            executor.remove_node(node)
+
+
+@contextlib.contextmanager
+def ending_on_shutdown(context):
+    """Swallow an error raised because ``context`` was shut down meanwhile."""
+    try:
+        yield
+    except ExternalShutdownException:
+        pass
+    except Exception:  # noqa: B902 - RCLError, InvalidHandle, RuntimeError: rclpy's choice
+        if context.ok():
+            raise
