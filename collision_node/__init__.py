@@ -13,6 +13,7 @@ imported on first use, so ``from collision_node import World`` never loads ROS.
 """
 import importlib
 
+from collision_node.pipeline.robot import Robot
 from collision_node.pipeline.warm_up import warm_up
 from collision_node.pipeline.world import CONTACT_DTYPE, DYNAMIC, Result, STATIC, World
 
@@ -21,7 +22,8 @@ _ROS_NAMES = {
     'serialize_pose_array': 'collision_node.ros.cdr',
 }
 
-__all__ = ['CONTACT_DTYPE', 'DYNAMIC', 'Result', 'STATIC', 'World', 'warm_up', *_ROS_NAMES]
+__all__ = ['CONTACT_DTYPE', 'DYNAMIC', 'Result', 'Robot', 'STATIC', 'World', 'warm_up',
+           *_ROS_NAMES]
 
 
 def __getattr__(name):
