@@ -13,9 +13,10 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.xml')),
     ],
-    install_requires=['setuptools', 'numpy', 'numba'],
+    install_requires=['setuptools', 'numpy', 'numba', 'trimesh', 'pycollada'],
     extras_require={
-        'test': ['pytest', 'hypothesis', 'python-fcl', 'coal'],
+        # pin and example-robot-data: the robot model's FK reference and its robots.
+        'test': ['pytest', 'hypothesis', 'python-fcl', 'coal', 'pin', 'example-robot-data'],
         'bench': ['python-fcl', 'coal', 'mujoco', 'matplotlib'],  # robot section: coal, mujoco
     },
     zip_safe=False,

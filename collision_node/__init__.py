@@ -17,6 +17,7 @@ _NAMES = {  # imported on first use: importing a submodule never loads numba or 
     'CONTACT_DTYPE': 'collision_node.pipeline.world',
     'DYNAMIC': 'collision_node.pipeline.world',
     'Result': 'collision_node.pipeline.world',
+    'Robot': 'collision_node.pipeline.robot',
     'STATIC': 'collision_node.pipeline.world',
     'World': 'collision_node.pipeline.world',
     'warm_up': 'collision_node.pipeline.warm_up',

@@ -14,10 +14,10 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PACKAGE = 'collision_node'
 # Python dependencies by import name: the rosdep key package.xml uses for each.
 ROSDEP_KEYS = {'numpy': 'python3-numpy', 'numba': 'python3-numba', 'pytest': 'python3-pytest',
-               'hypothesis': 'python3-hypothesis'}
+               'hypothesis': 'python3-hypothesis', 'trimesh': 'python3-trimesh'}
 # Imports without a rosdep key, declared as pip extras in setup.py instead: pip names.
 PIP_NAMES = {'fcl': 'python-fcl', 'matplotlib': 'matplotlib', 'coal': 'coal',
-             'mujoco': 'mujoco'}
+             'mujoco': 'mujoco', 'pinocchio': 'pin'}
 
 
 @pytest.fixture(scope='module')

@@ -13,6 +13,7 @@ from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.broadphase.auto import GRID_BODIES
 from collision_node.pipeline.contacts import (assemble_contacts, DYNAMIC, MIN_PAIRS_PER_THREAD,
                                               orient_pairs, STATIC)
+from collision_node.pipeline.robot import Robot
 from collision_node.pipeline.sat import COLLIDING, empty_output
 from collision_node.pipeline.workers import Workers
 from collision_node.pipeline.world import ONE_PASS_PAIRS, ONE_PASS_PHASES, World
@@ -21,6 +22,20 @@ WARM_UP_BODIES = 64  # half static: enough for every broad phase to run its full
 AUTO_SPREAD_BODIES = 2 * GRID_BODIES  # auto measures the boxes' spread from this many bodies
 # Half static, half dynamic (n/2 · (n/2 - 1) / 2 + n²/4 pairs): past ONE_PASS_PAIRS.
 ONE_PASS_BODIES = 2 * int(np.sqrt(4.0 * ONE_PASS_PAIRS / 3.0)) + 8
+# A robot with one joint of each kind the forward kinematics branches on (fixed, revolute,
+# prismatic) and a box on each link: its kernels compile for any robot (same types).
+WARM_UP_ROBOT = """<robot name="warm_up">
+  <link name="base"><collision><geometry><box size="0.2 0.2 0.1"/></geometry></collision></link>
+  <link name="arm"><collision><geometry><cylinder radius="0.05" length="0.4"/></geometry>
+    </collision></link>
+  <link name="tool"><collision><geometry><sphere radius="0.05"/></geometry></collision></link>
+  <link name="tip"/>
+  <joint name="turn" type="revolute"><parent link="base"/><child link="arm"/>
+    <axis xyz="0 0 1"/><limit lower="-3" upper="3"/></joint>
+  <joint name="slide" type="prismatic"><parent link="arm"/><child link="tool"/>
+    <origin xyz="0 0 0.4"/><axis xyz="0 0 1"/><limit lower="0" upper="0.1"/></joint>
+  <joint name="end" type="fixed"><parent link="tool"/><child link="tip"/></joint>
+</robot>"""
 
 
 class _Scene:
@@ -149,3 +164,8 @@ def warm_up():
             moved[:2, 0] += shift
             world.move_static(ids, moved)
             world.step(scene.half_moved(0.5), extents)
+    # The robot model's forward kinematics: one state, a batch, the link frames.
+    robot = Robot.from_urdf(WARM_UP_ROBOT)
+    robot.box_poses(np.zeros(robot.dof))
+    robot.box_poses(np.zeros((2, robot.dof)))
+    robot.link_poses(np.zeros(robot.dof))

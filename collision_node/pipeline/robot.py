@@ -1,0 +1,510 @@
+"""A robot's collision boxes, read from a URDF (and an SRDF), and their forward kinematics.
+
+The URDF is parsed once in Python (collision_node.pipeline.urdf, .meshes) into
+:class:`RobotModel`, a named tuple of flat arrays (pinocchio's ``Model`` idea: parents,
+joint placements, q indices); :func:`forward_kinematics`, a kernel other kernels may call,
+walks it once per state.
+
+Joints. Each link but the root hangs from one joint: link frame = parent frame * origin *
+motion, the motion a turn about the unit axis (revolute, continuous) or a slide along it
+(prismatic) by value = multiplier * q[q_index] + offset; an ordinary joint has multiplier 1,
+offset 0 and its own entry of q, a mimic joint the entry of the joint it follows (a mimic of
+a mimic composed into one affine map), a fixed joint no entry (q index -1). q holds the
+moving, non-mimic joints in URDF document order.
+
+Composition. The chain is composed as translation + 3x3 rotation matrix and each box's
+rotation is turned into a quaternion once at the end: matrices stay orthonormal to rounding
+along a chain without renormalising (a product of quaternions drifts off unit length), a
+joint's turn is Rodrigues' formula on its stored axis, and the one conversion per box
+(Shepperd's method, then normalised) is cheaper than converting every joint.
+
+Geometry. Every ``<collision>`` element is one box, in document order: a ``box`` exactly, a
+``cylinder`` (about its z axis) the box around it (volume ratio 4/pi), a ``sphere`` its cube
+(6/pi), a ``mesh`` (scaled) an oriented box holding every vertex, never larger than the
+vertices' axis-aligned box (collision_node.pipeline.meshes). ``box_volume_ratio`` is box
+volume / shape volume: for a mesh, over the volume the mesh encloses (NaN for an open mesh).
+
+Self-collision filter (MoveIt's rules). Two boxes are not tested when they belong to one
+link, when their links are adjacent, or when the SRDF disables the pair. Adjacent: the tree
+path between the two links has no link with collision geometry inside it (one joint apart,
+or apart only through links without geometry: MoveIt's setup assistant joins the neighbours
+of each link without geometry, and this is that rule applied until nothing changes, so a
+link stands next to its nearest ancestor with geometry and to the links reached through
+geometry-less ones). The SRDF's ``<disable_collisions>`` pairs are added with their reason,
+``<disable_default_collisions link>`` disables the link against every link with geometry
+(reason 'default'), and ``<enable_collisions>`` takes a pair back from either (as MoveIt's
+allowed-collision matrix, where explicit entries beat default ones), never from adjacency.
+
+Motion bound (``motion_radii``). Base fixed, q(s) = q0 + s (q1 - q0), s in [0, 1], with
+q0 and q1 within the limits: every q(s) is too (the limits are a box, which is convex). A point
+p of box b moves with dp/ds = sum_j (q1_j - q0_j) dp/dq_j, so |p(1) - p(0)| <= integral of
+|dp/ds| <= sum_j |q1_j - q0_j| max_s |dp/dq_j|. Joint k of the chain above b, driven by q_j
+with multiplier m_k, adds to dp/dq_j: m_k a_k x (p - o_k) when it turns (a_k its unit axis,
+o_k its frame's origin), m_k a_k when it slides. |a_k x (p - o_k)| <= |p - o_k|, and p - o_k
+is the sum, rotated, of the translations below joint k on the chain: each joint origin's
+|xyz| and each prismatic joint's largest |value| within its limits (its travel), then the
+box centre's offset in its link and the box's half diagonal. So motion_radii[b, j] = sum over
+the chain joints k driven by q_j of |m_k| (that reach if k turns, 1 if it slides); joints off
+the chain contribute 0. A continuous joint driving a prismatic mimic has an infinite travel,
+and so infinite radii above it.
+"""
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from collision_node.pipeline import meshes, urdf
+from collision_node.pipeline._jit import kernel
+
+# Joint type codes in RobotModel.joint_types (continuous is revolute without limits).
+FIXED = 0
+REVOLUTE = 1
+PRISMATIC = 2
+_TYPE_CODES = {urdf.FIXED: FIXED, urdf.REVOLUTE: REVOLUTE, urdf.CONTINUOUS: REVOLUTE,
+               urdf.PRISMATIC: PRISMATIC}
+NO_INDEX = -1  # q_indices of a fixed joint, parents of the root link
+ADJACENT = 'adjacent'
+DEFAULT = 'default'
+IDENTITY_POSE = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+# How conservative each primitive's box is: box volume / shape volume.
+VOLUME_RATIOS = {urdf.BOX: 1.0, urdf.CYLINDER: 4.0 / math.pi, urdf.SPHERE: 6.0 / math.pi}
+
+
+class RobotModel(NamedTuple):
+    """Everything the forward kinematics reads, as flat contiguous arrays (L links, B boxes).
+
+    Links are indexed as in ``Robot.link_names`` (URDF document order); ``order`` lists them
+    parents first. Row l of the joint arrays is the joint whose child is link l (the root's
+    row is unused: NO_INDEX parent, fixed).
+    """
+
+    order: np.ndarray                # (L,) int64
+    parents: np.ndarray              # (L,) int64, NO_INDEX for the root
+    origin_translations: np.ndarray  # (L, 3) joint origin in the parent's frame
+    origin_rotations: np.ndarray     # (L, 3, 3)
+    joint_types: np.ndarray          # (L,) int64: FIXED, REVOLUTE, PRISMATIC
+    axes: np.ndarray                 # (L, 3) unit axis in the joint's frame
+    q_indices: np.ndarray            # (L,) int64: the entry of q driving the joint
+    multipliers: np.ndarray          # (L,) joint value = multiplier * q + offset
+    offsets: np.ndarray              # (L,)
+    joint_limits: np.ndarray         # (dof, 2) lower, upper (continuous: -inf, inf)
+    box_links: np.ndarray            # (B,) int64
+    box_translations: np.ndarray     # (B, 3) box centre in its link's frame
+    box_rotations: np.ndarray        # (B, 3, 3) box axes in its link's frame
+    half_extents: np.ndarray         # (B, 3)
+    motion_radii: np.ndarray         # (B, dof) module docstring, Motion bound
+
+
+class Robot:
+    """A robot's collision boxes and their poses for joint values q (module docstring)."""
+
+    def __init__(self, joint_names, link_names, box_shapes, box_volume_ratio,
+                 collision_origins, disabled_link_pairs, model):
+        """Hold a built model; use :meth:`from_urdf`."""
+        self.joint_names = joint_names
+        self.link_names = link_names
+        self.box_shapes = box_shapes
+        self.box_volume_ratio = box_volume_ratio
+        # The <collision> element's own <origin> per box, in its link's frame, as a pose: the
+        # box pose is this composed with the box's offset in the shape (a mesh's box).
+        self.collision_origins = collision_origins
+        self.disabled_link_pairs = disabled_link_pairs
+        self.model = model
+        self.box_link_index = model.box_links
+        self.box_links = tuple(link_names[link] for link in model.box_links)
+        self.half_extents = model.half_extents
+        self.joint_limits = model.joint_limits
+        self.allowed_box_pairs = _allowed_box_pairs(self.box_links, disabled_link_pairs)
+
+    @classmethod
+    def from_urdf(cls, urdf_source, srdf=None, package_paths=()):
+        """Build the robot from a URDF (path or XML text) and an optional SRDF (likewise).
+
+        ``package_paths``: folders searched for ``pkg/path`` when a ``package://pkg/path``
+        mesh is not in the ament index. Raises ValueError naming what is wrong.
+        """
+        description = urdf.read_urdf(urdf_source)
+        rules = urdf.read_srdf(srdf) if srdf is not None else urdf.CollisionRules((), (), ())
+        links = description.links
+        index = {name: number for number, name in enumerate(links)}
+        joint_of = _joints_by_child(description.joints)
+        order = _parents_first(links, description.joints, joint_of)
+        drivers = _drivers(description.joints)
+        joint_names = tuple(joint.name for joint in description.joints if joint.name in drivers
+                            and drivers[joint.name][0] == joint.name)
+        q_index = {name: number for number, name in enumerate(joint_names)}
+        count = len(links)
+        parents = np.full(count, NO_INDEX, np.int64)
+        translations = np.zeros((count, 3))
+        rotations = np.tile(np.eye(3), (count, 1, 1))
+        types = np.zeros(count, np.int64)
+        axes = np.zeros((count, 3))
+        q_indices = np.full(count, NO_INDEX, np.int64)
+        multipliers = np.ones(count)
+        offsets = np.zeros(count)
+        travels = np.zeros(count)  # the largest |value| of each prismatic joint
+        limits = np.empty((len(joint_names), 2))
+        by_name = {joint.name: joint for joint in description.joints}
+        for name, number in q_index.items():
+            limits[number] = by_name[name].lower, by_name[name].upper
+        for link, joint in joint_of.items():
+            row = index[link]
+            parents[row] = index[joint.parent]
+            translations[row] = joint.origin.xyz
+            rotations[row] = rotation_from_rpy(*joint.origin.rpy)
+            types[row] = _TYPE_CODES[joint.kind]
+            axes[row] = joint.axis
+            if joint.name in drivers:
+                driver, multipliers[row], offsets[row] = drivers[joint.name]
+                q_indices[row] = q_index[driver]
+                if types[row] == PRISMATIC:
+                    ends = multipliers[row] * limits[q_indices[row]] + offsets[row]
+                    with np.errstate(invalid='ignore'):  # 0 * inf: a zero multiplier
+                        travels[row] = np.nan_to_num(np.abs(ends), nan=abs(offsets[row])).max()
+        boxes = _boxes(description, package_paths)
+        box_links = np.array([index[element.link] for element in description.collisions],
+                             np.int64)
+        box_translations = np.array([box[0] for box in boxes]).reshape(-1, 3)
+        box_rotations = np.array([box[1] for box in boxes]).reshape(-1, 3, 3)
+        half_extents = np.array([box[2] for box in boxes]).reshape(-1, 3)
+        model = RobotModel(
+            np.array(order, np.int64), parents, translations, rotations, types, axes,
+            q_indices, multipliers, offsets, limits, box_links, box_translations,
+            box_rotations, half_extents, None)
+        model = model._replace(motion_radii=_motion_radii(model, travels))
+        origins = np.array([pose_from(rotation_from_rpy(*element.origin.rpy),
+                                      element.origin.xyz)
+                            for element in description.collisions]).reshape(-1, 7)
+        geometric = {element.link for element in description.collisions}
+        disabled = _disabled_link_pairs(links, joint_of, geometric, rules)
+        return cls(joint_names, links, tuple(element.shape for element in description.collisions),
+                   np.array([box[3] for box in boxes]), origins, disabled, model)
+
+    @property
+    def dof(self):
+        """Return the length of q."""
+        return len(self.joint_names)
+
+    def box_poses(self, q):
+        """Return the box poses (B, 7) for q (dof,), or (K, B, 7) for q (K, dof).
+
+        Poses are x y z qx qy qz qw in the root link's frame. ValueError for a q of the wrong
+        shape or with a NaN or Inf value.
+        """
+        states = self._states(q)
+        out = np.empty((len(states), len(self.box_links), 7))
+        _box_poses_of_states(self.model, IDENTITY_POSE, states, out)
+        return out[0] if np.ndim(q) == 1 else out
+
+    def link_poses(self, q):
+        """Return the link frames' poses (L, 7) for q (dof,), in ``link_names`` order."""
+        state = self._states(q)
+        if len(state) != 1 or np.ndim(q) != 1:
+            raise ValueError('link_poses takes one state q of shape (%d,)' % self.dof)
+        count = len(self.link_names)
+        rotations, translations = np.empty((count, 3, 3)), np.empty((count, 3))
+        link_transforms(self.model, IDENTITY_POSE, state[0], rotations, translations)
+        return np.array([pose_from(rotations[link], translations[link])
+                         for link in range(count)])
+
+    def _states(self, q):
+        states = np.array(q, dtype=np.float64, ndmin=1)
+        if states.ndim == 1:
+            states = states.reshape(1, -1)
+        if states.ndim != 2 or states.shape[1] != self.dof:
+            raise ValueError('q must have shape (%d,) or (K, %d) (joints %s), got %s'
+                             % (self.dof, self.dof, ', '.join(self.joint_names),
+                                np.shape(q)))
+        bad = np.argwhere(~np.isfinite(states))
+        if len(bad):
+            raise ValueError('q has a NaN or Inf value: state %d, joint %r'
+                             % (bad[0][0], self.joint_names[bad[0][1]]))
+        return np.ascontiguousarray(states)
+
+
+def rotation_from_rpy(roll, pitch, yaw):
+    """Return URDF's rotation of roll, pitch, yaw: Rz(yaw) Ry(pitch) Rx(roll)."""
+    cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch),
+                              math.sin(pitch), math.cos(yaw), math.sin(yaw))
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def pose_from(rotation, translation):
+    """Return the pose (7,) x y z qx qy qz qw of a rotation matrix and a translation."""
+    pose = np.empty(7)
+    pose[:3] = translation
+    pose[3:] = _quaternion_from_rotation(
+        rotation[0, 0], rotation[0, 1], rotation[0, 2], rotation[1, 0], rotation[1, 1],
+        rotation[1, 2], rotation[2, 0], rotation[2, 1], rotation[2, 2])
+    return pose
+
+
+def _joints_by_child(joints):
+    """Return {child link: its joint}; ValueError for a link that two joints hold."""
+    joint_of = {}
+    for joint in joints:
+        if joint.child in joint_of:
+            raise ValueError('URDF: link %r is the child of two joints, %r and %r'
+                             % (joint.child, joint_of[joint.child].name, joint.name))
+        joint_of[joint.child] = joint
+    return joint_of
+
+
+def _parents_first(links, joints, joint_of):
+    """Return the link indices, each after its parent; ValueError unless links form a tree."""
+    roots = [name for name in links if name not in joint_of]
+    if len(roots) != 1:
+        raise ValueError('URDF: the links must form one tree with one root; %s'
+                         % ('roots: %s' % ', '.join(roots) if roots
+                            else 'every link has a parent (a cycle)'))
+    children = {name: [] for name in links}
+    for joint in joints:
+        children[joint.parent].append(joint.child)
+    index = {name: number for number, name in enumerate(links)}
+    order, stack = [], [roots[0]]
+    while stack:
+        name = stack.pop()
+        order.append(index[name])
+        stack.extend(reversed(children[name]))
+    if len(order) != len(links):
+        cut = sorted(set(links) - {links[number] for number in order})
+        raise ValueError('URDF: links %s are not reached from the root %r (a cycle)'
+                         % (', '.join(cut), roots[0]))
+    return order
+
+
+def _drivers(joints):
+    """Return {moving joint: (the joint of q driving it, multiplier, offset)}.
+
+    A mimic of a mimic is composed into one affine map of the joint at the end of the chain;
+    a mimic of a fixed or unknown joint, or a cycle of mimics, is a ValueError.
+    """
+    by_name = {joint.name: joint for joint in joints}
+    drivers = {}
+    for joint in joints:
+        if joint.kind == urdf.FIXED:
+            continue
+        multiplier, offset, current, seen = 1.0, 0.0, joint, [joint.name]
+        while current.mimic:
+            followed = by_name.get(current.mimic)
+            if followed is None or followed.kind == urdf.FIXED:
+                raise ValueError('joint %r: <mimic> names %r, which is %s' % (
+                    current.name, current.mimic,
+                    'not a joint' if followed is None else 'a fixed joint'))
+            if followed.name in seen:
+                raise ValueError('joint %r: mimic joints follow each other in a cycle: %s'
+                                 % (joint.name, ' -> '.join(seen + [followed.name])))
+            # value = m * (m' * q + o') + o
+            multiplier, offset = multiplier * current.multiplier, \
+                multiplier * current.offset + offset
+            current = followed
+            seen.append(current.name)
+        drivers[joint.name] = (current.name, multiplier, offset)
+    return drivers
+
+
+def _boxes(description, package_paths):
+    """Return (centre, rotation, half extents, volume ratio) per collision element."""
+    boxes, fitted = [], {}
+    for element in description.collisions:
+        rotation = rotation_from_rpy(*element.origin.rpy)
+        origin = np.array(element.origin.xyz)
+        if element.shape == urdf.MESH:
+            path = meshes.resolve(element.uri, element.link, description.directory,
+                                  package_paths)
+            if path not in fitted:  # one file is often named by several links
+                fitted[path] = meshes.read_vertices(path, element.link, element.uri)
+            vertices, volume = fitted[path]
+            box = meshes.fit_box(vertices, element.size, volume)
+            ratio = 8.0 * np.prod(box.half_extents) / box.mesh_volume \
+                if box.mesh_volume > 0.0 else np.nan
+            boxes.append((origin + rotation @ box.center, rotation @ box.rotation,
+                          box.half_extents, ratio))
+            continue
+        if element.shape == urdf.BOX:
+            half = 0.5 * np.array(element.size)
+        elif element.shape == urdf.CYLINDER:
+            radius, length = element.size
+            half = np.array([radius, radius, 0.5 * length])
+        else:
+            half = np.full(3, element.size[0])
+        boxes.append((origin, rotation, half, VOLUME_RATIOS[element.shape]))
+    return boxes
+
+
+def _motion_radii(model, travels):
+    """Return motion_radii (B, dof): the module docstring's Motion bound."""
+    radii = np.zeros((len(model.box_links), len(model.joint_limits)))
+    for box, link in enumerate(model.box_links):
+        # Walking up from the box: the reach below the current joint grows as we go.
+        reach = np.linalg.norm(model.box_translations[box]) \
+            + np.linalg.norm(model.half_extents[box])
+        while model.parents[link] != NO_INDEX:
+            kind = model.joint_types[link]
+            if kind != FIXED:
+                weight = abs(model.multipliers[link])
+                radii[box, model.q_indices[link]] += weight * (reach if kind == REVOLUTE
+                                                               else 1.0)
+            reach += np.linalg.norm(model.origin_translations[link]) + travels[link]
+            link = model.parents[link]
+    return radii
+
+
+def _disabled_link_pairs(links, joint_of, geometric, rules):
+    """Return {(link a, link b) sorted: reason} of the link pairs never tested."""
+    for name in [name for pair in rules.disabled_pairs for name in pair[:2]] \
+            + list(rules.disabled_by_default) \
+            + [name for pair in rules.enabled_pairs for name in pair]:
+        if name not in links:
+            raise ValueError('SRDF: link %r is not a link of the URDF' % name)
+    disabled = {}
+    # Each geometric link's chain up: the links without geometry above it, then the first
+    # link with geometry (if any). Two chains sharing a link without geometry, or one ending
+    # at the other link, make the pair adjacent (module docstring).
+    met = {}
+    for link in sorted(geometric):
+        above = joint_of[link].parent if link in joint_of else None
+        while above is not None and above not in geometric:
+            for other in met.get(above, ()):
+                disabled[tuple(sorted((link, other)))] = ADJACENT
+            met.setdefault(above, []).append(link)
+            above = joint_of[above].parent if above in joint_of else None
+        if above is not None:
+            disabled[tuple(sorted((link, above)))] = ADJACENT
+    for first, second, reason in rules.disabled_pairs:
+        disabled.setdefault(tuple(sorted((first, second))), reason)
+    for link in rules.disabled_by_default:
+        for other in sorted(geometric - {link}):
+            disabled.setdefault(tuple(sorted((link, other))), DEFAULT)
+    for pair in rules.enabled_pairs:
+        pair = tuple(sorted(pair))
+        if disabled.get(pair, ADJACENT) != ADJACENT:
+            del disabled[pair]
+    return disabled
+
+
+def _allowed_box_pairs(box_links, disabled):
+    """Return the (P, 2) box pairs i < j to test, in lexicographic order."""
+    pairs = [(i, j) for i in range(len(box_links)) for j in range(i + 1, len(box_links))
+             if box_links[i] != box_links[j]
+             and tuple(sorted((box_links[i], box_links[j]))) not in disabled]
+    return np.array(pairs, np.int64).reshape(-1, 2)
+
+
+@kernel
+def _quaternion_from_rotation(r00, r01, r02, r10, r11, r12, r20, r21, r22):
+    """Return the unit quaternion (x, y, z, w) of a rotation matrix (Shepperd's method).
+
+    The largest of w, x, y, z is found from the diagonal first, so the square root is of a
+    number >= 1 and the divisions are well conditioned for any rotation.
+    """
+    trace = r00 + r11 + r22
+    if trace >= r00 and trace >= r11 and trace >= r22:
+        s = 2.0 * math.sqrt(1.0 + trace)
+        x, y, z, w = (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s
+    elif r00 >= r11 and r00 >= r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        x, y, z, w = 0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s
+    elif r11 >= r22:
+        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        x, y, z, w = (r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        x, y, z, w = (r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    return x / norm, y / norm, z / norm, w / norm
+
+
+@kernel
+def link_transforms(model, base_pose, q, rotations, translations):
+    """Write every link frame (rotation (L, 3, 3), translation (L, 3)) for one state q.
+
+    The root link's frame is ``base_pose`` (its quaternion normalised here).
+    """
+    joint = np.empty((3, 3))  # a joint's frame before its motion: parent * origin
+    shift = np.empty(3)
+    for k in range(model.order.shape[0]):
+        link = model.order[k]
+        parent = model.parents[link]
+        if parent == NO_INDEX:
+            x, y, z, w = base_pose[3], base_pose[4], base_pose[5], base_pose[6]
+            norm = math.sqrt(x * x + y * y + z * z + w * w)
+            x, y, z, w = x / norm, y / norm, z / norm, w / norm
+            rotations[link, 0, 0] = 1.0 - 2.0 * (y * y + z * z)
+            rotations[link, 0, 1] = 2.0 * (x * y - z * w)
+            rotations[link, 0, 2] = 2.0 * (x * z + y * w)
+            rotations[link, 1, 0] = 2.0 * (x * y + z * w)
+            rotations[link, 1, 1] = 1.0 - 2.0 * (x * x + z * z)
+            rotations[link, 1, 2] = 2.0 * (y * z - x * w)
+            rotations[link, 2, 0] = 2.0 * (x * z - y * w)
+            rotations[link, 2, 1] = 2.0 * (y * z + x * w)
+            rotations[link, 2, 2] = 1.0 - 2.0 * (x * x + y * y)
+            for i in range(3):
+                translations[link, i] = base_pose[i]
+            continue
+        for i in range(3):
+            shift[i] = translations[parent, i]
+            for j in range(3):
+                shift[i] += rotations[parent, i, j] * model.origin_translations[link, j]
+                joint[i, j] = 0.0
+                for m in range(3):
+                    joint[i, j] += rotations[parent, i, m] * model.origin_rotations[link, m, j]
+        kind = model.joint_types[link]
+        value = 0.0
+        if kind != FIXED:
+            value = model.multipliers[link] * q[model.q_indices[link]] + model.offsets[link]
+        ax, ay, az = model.axes[link, 0], model.axes[link, 1], model.axes[link, 2]
+        if kind == PRISMATIC:
+            for i in range(3):
+                shift[i] += value * (joint[i, 0] * ax + joint[i, 1] * ay + joint[i, 2] * az)
+        for i in range(3):
+            translations[link, i] = shift[i]
+        if kind == REVOLUTE:
+            # Rodrigues: R = c I + s [a]x + (1 - c) a a^T.
+            c, s = math.cos(value), math.sin(value)
+            t = 1.0 - c
+            turn = ((c + t * ax * ax, t * ax * ay - s * az, t * ax * az + s * ay),
+                    (t * ax * ay + s * az, c + t * ay * ay, t * ay * az - s * ax),
+                    (t * ax * az - s * ay, t * ay * az + s * ax, c + t * az * az))
+            for i in range(3):
+                for j in range(3):
+                    rotations[link, i, j] = joint[i, 0] * turn[0][j] \
+                        + joint[i, 1] * turn[1][j] + joint[i, 2] * turn[2][j]
+        else:
+            for i in range(3):
+                for j in range(3):
+                    rotations[link, i, j] = joint[i, j]
+
+
+@kernel
+def forward_kinematics(model, base_pose, q, out):
+    """Write the (B, 7) box poses of one state ``q`` (dof,) into ``out``.
+
+    ``base_pose`` (7,) is the root link's pose in the world; poses are x y z qx qy qz qw with
+    unit quaternions. Never raises: the caller checks q (finite, length dof).
+    """
+    count = model.parents.shape[0]
+    rotations = np.empty((count, 3, 3))
+    translations = np.empty((count, 3))
+    link_transforms(model, base_pose, q, rotations, translations)
+    r = np.empty((3, 3))
+    for b in range(model.box_links.shape[0]):
+        link = model.box_links[b]
+        for i in range(3):
+            out[b, i] = translations[link, i]
+            for j in range(3):
+                out[b, i] += rotations[link, i, j] * model.box_translations[b, j]
+                r[i, j] = rotations[link, i, 0] * model.box_rotations[b, 0, j] \
+                    + rotations[link, i, 1] * model.box_rotations[b, 1, j] \
+                    + rotations[link, i, 2] * model.box_rotations[b, 2, j]
+        out[b, 3], out[b, 4], out[b, 5], out[b, 6] = _quaternion_from_rotation(
+            r[0, 0], r[0, 1], r[0, 2], r[1, 0], r[1, 1], r[1, 2], r[2, 0], r[2, 1], r[2, 2])
+
+
+@kernel
+def _box_poses_of_states(model, base_pose, states, out):
+    """Write the box poses of each state (K, dof) into ``out`` (K, B, 7)."""
+    for k in range(states.shape[0]):
+        forward_kinematics(model, base_pose, states[k], out[k])
