@@ -26,10 +26,10 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'collision_node = collision_node.programs:collision_node',
-            'pose_publisher = collision_node.programs:pose_publisher',
-            'collision_monitor = collision_node.programs:collision_monitor',
-            'collision_demo = collision_node.programs:collision_demo',
+            'collision_node = collision_node.tools.programs:collision_node',
+            'pose_publisher = collision_node.tools.programs:pose_publisher',
+            'collision_monitor = collision_node.tools.programs:collision_monitor',
+            'collision_demo = collision_node.tools.programs:collision_demo',
             'collision_bench = collision_node.benchmarks.collision_bench:main',
             'collision_latency = collision_node.benchmarks.collision_latency:main',
             'collision_soak = collision_node.benchmarks.collision_soak:main',

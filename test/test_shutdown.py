@@ -47,7 +47,7 @@ def test_tools_signalled_at_random_moments(program):
 def test_a_signal_before_the_start_is_a_clean_exit(signum):
     """A signal the latch holds (e.g. one during the imports) ends the start at once."""
     code = ('import os, signal, sys\n'
-            'from collision_node import programs\n'
+            'from collision_node.tools import programs\n'
             'from collision_node.ros.signal_latch import LATCH\n'
             'LATCH.install()\n'
             'os.kill(os.getpid(), %d)\n'  # received before the start: the start ends at once

@@ -69,7 +69,6 @@ from collision_node.pipeline import scenes
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import uniform, UNIFORM_HALF_EXTENTS
 from collision_node.pipeline.world import Result, World
-from collision_node.programs import child_command
 from collision_node.ros import diagnostics
 from collision_node.ros.cdr import ENCAPSULATION_SIZE, serialize_pose_array
 from collision_node.ros.lifetime import RosProgram
@@ -78,6 +77,7 @@ from collision_node.ros.messages import CloudWriter, contacts_to_cloud
 from collision_node.ros.node import CollisionNode, INPUT_QOS, OUTPUT_QOS  # the node's own QoS
 from collision_node.tools.demo import default_config
 from collision_node.tools.processes import stop_process
+from collision_node.tools.programs import child_command
 
 STATUS_NAME = 'collision_node: collision_check'
 # Fast DDS reads its XML profile (e.g. a larger shared-memory segment) from this variable; the

@@ -24,8 +24,8 @@ import sys
 import threading
 import time
 
-from collision_node.programs import child_command
 from collision_node.tools.processes import stop_process
+from collision_node.tools.programs import child_command
 
 CONFIG = pathlib.Path(__file__).resolve().parents[2] / 'config' / 'default.yaml'
 # What each program logs once it spins; the node says so after its autostart transitions.
@@ -35,7 +35,7 @@ READY_LINES = {
     'collision_monitor': None,
     'collision_demo': 'waiting for the first diagnostics',
 }
-# Each as its console script runs it (collision_node.programs), with its arguments.
+# Each as its console script runs it (collision_node.tools.programs), with its arguments.
 PROGRAMS = {
     'node': ('collision_node', '--ros-args', '--params-file', str(CONFIG)),
     'pose_publisher': ('pose_publisher', '--scene', 'room', '--rate', '1000'),

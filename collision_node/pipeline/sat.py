@@ -251,13 +251,13 @@ def collide_pair_rows(centers, rotations, extents, radii, pairs, sphere_prefilte
             continue
         tie = TIE_ULPS * EPS * scale
         if margin is None:
-            status[k], depth[k], axis_id = _separating_axis_test(rel, t, ea, eb, tie, None)
+            status[k], depth[k], axis_id = separating_axis_test(rel, t, ea, eb, tie, None)
             pair_margin = 0.0
         else:
             pair_margin = margin if box_margins is None else \
                 margin + box_margins[a] + box_margins[b]
-            status[k], depth[k], axis_id = _separating_axis_test(rel, t, ea, eb, tie,
-                                                                 pair_margin)
+            status[k], depth[k], axis_id = separating_axis_test(rel, t, ea, eb, tie,
+                                                                pair_margin)
         if status[k] == COLLIDING:
             axis, local_point = _contact(rel, t, ea, eb, tie, axis_id)
         elif margin is not None and status[k] == NEAR:
@@ -298,7 +298,7 @@ def _near_normal(rel, t, ea, eb, tie, closest, widest_gap, axis_id):
 
 
 @kernel
-def _separating_axis_test(rel, t, ea, eb, tie, margin):
+def separating_axis_test(rel, t, ea, eb, tie, margin):
     """Return (status, overlap, axis number) of the pair, in A's frame.
 
     Separated: the (negative) overlap on the first axis found that separates the boxes by
@@ -587,4 +587,4 @@ def _clip(chord, slab, tie):
 
 
 # The per-pair test, for continuous.py's conservative advancement.
-separating_axis_test = _separating_axis_test
+separating_axis_test = separating_axis_test

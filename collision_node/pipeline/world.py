@@ -54,11 +54,14 @@ from collision_node.pipeline.filters import (ALL_CATEGORIES, DEFAULT_CATEGORY, f
                                              PairFilter)
 from collision_node.pipeline.obb import (Boxes, InvalidBox, MAX_COORDINATE, overlap_across,
                                          pad_bounds, REASONS, set_boxes)
+from collision_node.pipeline.robot_bodies import (DEFAULT_RESOLUTION, first_uncleared_pieces,
+                                                  RobotBodies, segment_contacts)
 from collision_node.pipeline.sat import (collide_pairs, COLLIDING, empty_output, INVALID,
                                          NEAR)
 from collision_node.pipeline.small_scene import (CANDIDATES, check_scene, check_states,
                                                  checked_pairs, COMPARED, FILTERED, SAT_TESTS,
                                                  STATE_CONTACT_DTYPE, statics_table)
+from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
 from collision_node.pipeline.static_scene import StaticScene
 from collision_node.pipeline.workers import Workers
 from collision_node.pipeline.z_order import inverse, z_order
@@ -274,6 +277,8 @@ class World:
         self._continuous = bool(continuous)
         self._tolerance = _checked_tolerance(continuous_tolerance)
         self._filter = PairFilter()
+        self._filters_given = (DEFAULT_CATEGORY, ALL_CATEGORIES, np.zeros((0, 4), np.int64))
+        self._robot = None  # robot_bodies.RobotBodies once set_robot gave one
         self._workers = Workers(threads)
         self._settings = Settings(octree_max_depth, octree_leaf_cooldown_ticks)
         self._phase = make_broad_phase(broad_phase, self._settings, self._workers)
@@ -365,9 +370,97 @@ class World:
         A pair is checked only if ``category_a & mask_b`` and ``category_b & mask_a`` are both
         non-zero and it is not ignored (filters.py). Raises ValueError on invalid values.
         """
+        given = (categories, masks, np.asarray(ignored_pairs, np.int64).reshape(-1, 4))
+        self._set_filter(*given)
+        self._filters_given = given
+
+    def _set_filter(self, categories, masks, ignored_pairs):
+        """Filter with the given settings plus the robot's self-collision pairs, if any."""
+        if self._robot is not None:
+            ignored_pairs = np.concatenate([ignored_pairs, self._robot.ignored_pairs])
         self._filter = PairFilter(categories, masks, ignored_pairs)
         self._set_static_rows(self._static)
         self._changed()
+
+    # ------------------------------------------------------------------ a robot
+
+    def set_robot(self, robot, base_pose=None):
+        """Make the boxes of ``robot`` (a Robot) the dynamic bodies, its root at ``base_pose``.
+
+        Body i is box i (``robot.box_links[i]`` its link). The robot's self-collision filter
+        joins the filters of :meth:`set_filters`; ``base_pose`` (x y z qx qy qz qw, default
+        the identity) may change at any time with another call. Raises ValueError on a bad
+        base pose, and then nothing changes.
+        """
+        bodies = RobotBodies(robot, base_pose)
+        previous, self._robot = self._robot, bodies
+        try:
+            self._set_filter(*self._filters_given)
+        except ValueError:
+            self._robot = previous
+            raise
+
+    def check_joints(self, q):
+        """Check the robot at joint values q (dof,) or (K, dof), as :meth:`check_states`.
+
+        State k's contacts are those :meth:`step` gives for ``robot.box_poses(q[k])`` at the
+        base pose. Raises ValueError for a q of the wrong shape or with NaN or Inf (naming
+        the state and joint), or without a robot (:meth:`set_robot`).
+        """
+        bodies = self._robot_bodies()
+        return self.check_states(bodies.poses(q), bodies.robot.half_extents)
+
+    def check_trajectory(self, waypoints, resolution=DEFAULT_RESOLUTION):
+        """Check a joint-space path: its W waypoints exactly, the segments between them safely.
+
+        ``waypoints`` (W, dof). The contacts of waypoint k have ``state`` k and ``toi`` 0; a
+        pair that is not proven free on segment k -> k + 1 (robot_bodies.py: nothing
+        between waypoints is missed; a report is a collision or within ``resolution`` metres
+        of motion of one) has ``state`` k and ``toi`` the fraction of the segment where its
+        first piece not proven free starts, with the contact at that configuration if the
+        pair collides there (else depth 0, a zero normal and ``distance`` NaN). Sorted by
+        (state, id_a, type_b, id_b, toi).
+        """
+        bodies = self._robot_bodies()
+        waypoints = bodies.robot._states(waypoints)
+        resolution = _checked_margin('resolution', resolution)
+        exact = self.check_joints(waypoints).contacts
+        if len(waypoints) < 2:
+            return Result(exact)
+        pairs, keys, margins, boxes = self._robot_pairs(bodies)
+        found = first_uncleared_pieces(bodies.robot.model, bodies.base_pose, waypoints, pairs,
+                                       margins, boxes, max(resolution, 1e-12))
+        return Result(segment_contacts(self, bodies, waypoints, exact, found, keys))
+
+    def _robot_bodies(self):
+        if self._robot is None:
+            raise ValueError('no robot: call set_robot(robot) first')
+        return self._robot
+
+    def _robot_pairs(self, bodies):
+        """Return the robot's pairs the filters let through, for the segment check.
+
+        (pairs (P, 2) rows of the boxes below, keys (P, 3) id_a, type_b, id_b, margins (P,),
+        boxes (centers, rotations, half extents): B rows for the robot, then the static rows).
+        """
+        count, statics = bodies.count, self._static.by_id
+        checked = self._filter_table(count)
+        if checked is None:
+            checked = np.ones((count, count + len(statics)), np.bool_)
+        a, j = np.nonzero(np.triu(checked, 1))  # the pass's order: a, then its b's
+        static = j >= count
+        rows, types, ids = j.copy(), np.full(len(j), DYNAMIC, np.int64), j.copy()
+        rows[static] = count + statics[j[static] - count, STATICS_ROW]
+        ids[static] = statics[j[static] - count, STATICS_ID]
+        types[static] = STATIC
+        margins = np.full(len(j), self._margin)
+        if self._static.own_margins:
+            margins[static] += self._boxes.margins[rows[static] - count]
+        n_static = self._static.count
+        boxes = tuple(np.concatenate([np.zeros((count,) + part.shape[1:]), part[:n_static]])
+                      for part in (self._boxes.centers, self._boxes.rotations,
+                                   self._boxes.half_extents))
+        return np.column_stack([a, rows]), np.column_stack([a, types, ids]), margins, boxes
 
     # ------------------------------------------------------------------ the static scene
 

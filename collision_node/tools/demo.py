@@ -21,10 +21,10 @@ from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
 from collision_node.pipeline.scenes import SCENE_BODY_COUNTS
-from collision_node.programs import child_command
 from collision_node.ros.diagnostics import LEVEL_NAMES, STATUS_SUFFIX
 from collision_node.ros.lifetime import RosProgram
 from collision_node.tools.processes import stop_process
+from collision_node.tools.programs import child_command
 
 PACKAGE = 'collision_node'
 CONFIGS = {'room': os.path.join('config', 'default.yaml'),  # scene: its node parameters

@@ -5,7 +5,7 @@ that time would end it with a KeyboardInterrupt traceback or be killed by SIGTER
 ends it with status 0, as a signal does at any later moment (collision_node.ros.lifetime).
 A program started as a child process goes through here too::
 
-    python -m collision_node.programs collision_node --ros-args --params-file default.yaml
+    python -m collision_node.tools.programs collision_node --ros-args --params-file default.yaml
 """
 import importlib
 import sys
@@ -51,7 +51,7 @@ PROGRAMS = {'collision_node': collision_node, 'pose_publisher': pose_publisher,
 
 def child_command(program, *arguments):
     """Return the command line that runs ``program`` (a console script's name) with this Python."""
-    return [sys.executable, '-m', 'collision_node.programs', program, *arguments]
+    return [sys.executable, '-m', 'collision_node.tools.programs', program, *arguments]
 
 
 if __name__ == '__main__':

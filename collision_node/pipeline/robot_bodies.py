@@ -1,0 +1,191 @@
+"""A robot's boxes as a World's dynamic bodies: joint values in, and whole trajectories.
+
+:class:`RobotBodies` holds a :class:`~collision_node.pipeline.robot.Robot` at a base pose.
+Body i of the World is box i of the robot; the robot's self-collision filter (its boxes'
+pairs outside ``allowed_box_pairs``) is added to the World's ignored pairs, so a state checked
+through the joints is checked exactly as ``World.step`` checks its box poses.
+
+Trajectories. Waypoints are checked exactly (``World.check_states``). Between waypoints k and
+k + 1 the joints move on the straight segment q(s) = q_k + s (q_k+1 - q_k), s in [0, 1]. On a
+piece [s0, s1] of it every point of box b stays within
+
+    r_b = (s1 - s0) / 2 * sum_j |q_k+1,j - q_k,j| * motion_radii[b, j]
+
+of where it is at the piece's middle (robot.py derives the radii; joint limits assumed). So if
+box a grown by r_a (plus the margin that pair reports within) and box b grown by r_b are
+apart, by the separating axis test, no configuration of the piece brings the pair together:
+the piece is free for that pair. A pair the test cannot clear is split in halves, left half
+first, until its pieces move less than ``resolution`` (the sum r_a + r_b); the first piece
+still not cleared is reported, with ``toi`` its start. So a segment is reported only when a
+configuration on it collides or comes within ``resolution`` of colliding (or of the margin),
+and every segment with a colliding configuration is reported: nothing between waypoints is
+missed. A sampled check (MoveIt's, at its waypoints or at a fixed step) promises neither.
+"""
+import numpy as np
+
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.contacts import DYNAMIC
+from collision_node.pipeline.frames import matrix, relative_pose, sum_abs
+from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS, write_boxes
+from collision_node.pipeline.robot import forward_kinematics, IDENTITY_POSE
+from collision_node.pipeline.sat import SEPARATED, separating_axis_test
+from collision_node.pipeline.small_scene import STATE_CONTACT_DTYPE
+
+# What a segment's row takes from the exact contact at its toi, when its pair collides there.
+GEOMETRY = ('x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth', 'distance')
+DEFAULT_RESOLUTION = 1e-3  # m of motion: a reported segment is within this of a collision
+# Halvings of a segment at most: 2^-40 of a segment is below any motion float64 resolves
+# beside a robot's size; a pair not cleared by then is reported (conservative).
+MAX_DEPTH = 40
+
+
+class RobotBodies:
+    """A robot at a base pose; the World's dynamic bodies are its boxes."""
+
+    def __init__(self, robot, base_pose=None):
+        """Raise ValueError on a base pose that is not a finite pose with a unit quaternion."""
+        pose = IDENTITY_POSE if base_pose is None else np.asarray(base_pose, np.float64)
+        if pose.shape != (7,):
+            raise ValueError('base_pose must be x y z qx qy qz qw, got shape %s'
+                             % (pose.shape,))
+        check_boxes(pose.reshape(1, 7), np.ones((1, 3)))  # finite, unit quaternion
+        self.robot = robot
+        self.base_pose = np.array(pose)
+        self.base_pose[3:] /= np.linalg.norm(pose[3:])
+        allowed = np.zeros((len(robot.box_links),) * 2, np.bool_)
+        allowed[robot.allowed_box_pairs[:, 0], robot.allowed_box_pairs[:, 1]] = True
+        first, second = np.nonzero(np.triu(~allowed, 1))
+        self.ignored_pairs = np.column_stack([first, np.full_like(first, DYNAMIC), second,
+                                              np.full_like(first, DYNAMIC)])
+
+    @property
+    def count(self):
+        """Return the number of boxes, the World's dynamic bodies."""
+        return len(self.robot.box_links)
+
+    def poses(self, q):
+        """Return every box's pose in the World's frame, (K, B, 7): a state per row of ``q``."""
+        states = self.robot._states(q)
+        out = np.empty((len(states), self.count, 7))
+        _poses_of_states(self.robot.model, self.base_pose, states, out)
+        return out
+
+
+def segment_contacts(world, bodies, waypoints, exact, found, keys):
+    """Return the trajectory's contacts: the waypoints' ``exact`` ones and the segments'.
+
+    ``found`` (W - 1, P) from :func:`first_uncleared_pieces`, ``keys`` (P, 3) each pair's
+    (id_a, type_b, id_b). A segment's row carries the contact of its pair at q(toi) when the
+    pair collides there; a pair reported at toi 0 that waypoint k reports already is left out.
+    """
+    segment, pair = np.nonzero(found >= 0)
+    toi = found[segment, pair]
+    reported = {(row['state'], row['id_a'], row['type_b'], row['id_b']) for row in exact}
+    new = [i for i in range(len(segment))
+           if not (toi[i] == 0.0 and (segment[i], *keys[pair[i]]) in reported)]
+    segment, pair, toi = segment[new], pair[new], toi[new]
+    rows = np.zeros(len(new), STATE_CONTACT_DTYPE)
+    rows['state'], rows['toi'], rows['type_a'] = segment, toi, DYNAMIC
+    rows['id_a'], rows['type_b'], rows['id_b'] = keys[pair].T
+    rows['distance'] = np.nan
+    if len(new):
+        starts = waypoints[segment] + toi[:, None] * (waypoints[segment + 1] - waypoints[segment])
+        at = {(row['state'], row['id_a'], row['type_b'], row['id_b']): row
+              for row in world.check_joints(starts).contacts}
+        for i in range(len(new)):
+            contact = at.get((i, *keys[pair[i]]))
+            if contact is not None:
+                for name in GEOMETRY:
+                    rows[i][name] = contact[name]
+    at_waypoints = exact.copy()
+    at_waypoints['toi'] = 0.0  # check_states marks a discrete contact at the step's end, 1
+    contacts = np.concatenate([at_waypoints, rows])
+    order = np.lexsort((contacts['toi'], contacts['id_b'], contacts['type_b'], contacts['id_a'],
+                        contacts['state']))
+    return contacts[order]
+
+
+@kernel
+def _poses_of_states(model, base_pose, states, out):
+    for k in range(states.shape[0]):
+        forward_kinematics(model, base_pose, states[k], out[k])
+
+
+@kernel
+def first_uncleared_pieces(model, base_pose, waypoints, pairs, margins, boxes, resolution):
+    """Return, per segment and pair, where its first piece the test cannot clear starts.
+
+    ``boxes`` (centers, rotations, extents): rows 0..B-1 are written here for the robot's
+    boxes, the static boxes follow them. ``pairs`` (P, 2) rows of ``boxes``, the first one a
+    robot box, ``margins`` (P,) the distance within which each pair counts. Returns (W - 1, P):
+    s in [0, 1) where the first piece not cleared starts, or -1 (the whole segment is free).
+    """
+    centers, rotations, extents = boxes
+    count = model.half_extents.shape[0]
+    dof = waypoints.shape[1]
+    found = np.full((waypoints.shape[0] - 1, len(pairs)), -1.0)
+    poses = np.empty((count, 7))
+    aabbs = np.empty((count, 2, 3))  # written by write_boxes, not read
+    radii = np.empty(count)
+    q = np.empty(dof)
+    reach = np.zeros(len(centers))  # per box: sum_j |dq_j| motion_radii[b, j]; statics 0
+    stack = np.empty((MAX_DEPTH + 2, 2))
+    for k in range(waypoints.shape[0] - 1):
+        for b in range(count):
+            reach[b] = 0.0
+            for j in range(dof):
+                reach[b] += abs(waypoints[k + 1, j] - waypoints[k, j]) * model.motion_radii[b, j]
+        # The whole segment at once for every pair: a free trajectory mostly ends here.
+        _place(model, base_pose, waypoints, k, 0.5, q, poses, centers, rotations, extents,
+               aabbs, radii)
+        for p in range(len(pairs)):
+            a, b = pairs[p, 0], pairs[p, 1]
+            if _cleared(centers, rotations, extents, a, b, 0.5 * reach[a], 0.5 * reach[b],
+                        margins[p]):
+                continue
+            stack[0, 0], stack[0, 1] = 0.0, 1.0
+            top = 1
+            while top > 0:  # left half first: the first piece found is the earliest
+                top -= 1
+                s0, s1 = stack[top, 0], stack[top, 1]
+                half = 0.5 * (s1 - s0)
+                if s0 > 0.0 or s1 < 1.0:  # the whole segment's boxes are placed already
+                    _place(model, base_pose, waypoints, k, s0 + half, q, poses, centers,
+                           rotations, extents, aabbs, radii)
+                if _cleared(centers, rotations, extents, a, b, half * reach[a],
+                            half * reach[b], margins[p]):
+                    continue
+                if half * (reach[a] + reach[b]) <= resolution or top >= MAX_DEPTH:
+                    found[k, p] = s0
+                    break
+                stack[top, 0], stack[top, 1] = s0 + half, s1
+                stack[top + 1, 0], stack[top + 1, 1] = s0, s0 + half
+                top += 2
+    return found
+
+
+@kernel
+def _place(model, base_pose, waypoints, k, s, q, poses, centers, rotations, extents, aabbs,
+           radii):
+    """Write the robot's boxes at q(s) on segment k into rows 0..B-1."""
+    for j in range(waypoints.shape[1]):
+        q[j] = waypoints[k, j] + s * (waypoints[k + 1, j] - waypoints[k, j])
+    forward_kinematics(model, base_pose, q, poses)
+    write_boxes(poses, model.half_extents, 0, None, centers, rotations, extents, aabbs, radii)
+
+
+@kernel
+def _cleared(centers, rotations, extents, a, b, grow_a, grow_b, margin):
+    """Tell whether boxes a and b, grown by ``grow_a`` and ``grow_b``, are over ``margin`` apart.
+
+    On some axis, by the SAT of the narrow phase; the touching tolerance counts against
+    clearing, so rounding never clears a pair that touches.
+    """
+    ea = (extents[a, 0] + grow_a, extents[a, 1] + grow_a, extents[a, 2] + grow_a)
+    eb = (extents[b, 0] + grow_b, extents[b, 1] + grow_b, extents[b, 2] + grow_b)
+    d = (centers[b, 0] - centers[a, 0], centers[b, 1] - centers[a, 1],
+         centers[b, 2] - centers[a, 2])
+    rel, t = relative_pose(matrix(rotations, a), matrix(rotations, b), d)
+    tie = TIE_ULPS * EPS * (sum_abs(ea) + sum_abs(eb) + sum_abs(d))
+    status, _, _ = separating_axis_test(rel, t, ea, eb, tie, margin + tie)
+    return status == SEPARATED

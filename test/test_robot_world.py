@@ -1,0 +1,190 @@
+"""A robot in the World: joint values in, contacts out, whole trajectories checked.
+
+check_joints is checked against step on the robot's box poses (bit for bit) and against
+python-fcl on the same boxes with the robot's filter; check_trajectory against a dense
+sampled referee (no segment with a sampled collision may go unreported) and by hand.
+"""
+import os
+import sysconfig
+
+import fcl
+import numpy as np
+import pytest
+
+from collision_node import Robot, World
+from collision_node.pipeline.contacts import DYNAMIC, STATIC
+
+PREFIX = os.path.join(sysconfig.get_paths()['purelib'], 'cmeel.prefix')
+PANDA = os.path.join(PREFIX, 'share', 'example-robot-data', 'robots', 'panda_description')
+STATIC_POSES = [[0.5, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0],       # a wall in front
+                [0.0, 0.0, -0.06, 0.0, 0.0, 0.0, 1.0],     # the table under the base
+                [-0.3, 0.4, 0.5, 0.2, 0.1, 0.0, 0.9747]]   # a tilted crate
+STATIC_HALF_EXTENTS = [[0.05, 0.3, 0.3], [1.0, 1.0, 0.05], [0.1, 0.12, 0.08]]
+
+
+@pytest.fixture(scope='module')
+def panda():
+    previous = os.environ.get('AMENT_PREFIX_PATH')
+    os.environ['AMENT_PREFIX_PATH'] = PREFIX
+    try:
+        return Robot.from_urdf(os.path.join(PANDA, 'urdf', 'panda.urdf'),
+                               os.path.join(PANDA, 'srdf', 'panda.srdf'))
+    finally:
+        if previous is None:
+            del os.environ['AMENT_PREFIX_PATH']
+        else:
+            os.environ['AMENT_PREFIX_PATH'] = previous
+
+
+def panda_world(robot, base_pose=None, **settings):
+    world = World(**settings)
+    world.set_static(STATIC_POSES, STATIC_HALF_EXTENTS)
+    world.set_robot(robot, base_pose)
+    return world
+
+
+def random_states(robot, count, seed):
+    limits = robot.joint_limits
+    return np.random.default_rng(seed).uniform(limits[:, 0], limits[:, 1],
+                                               (count, robot.dof))
+
+
+def pair_keys(contacts):
+    return {(int(c['state']), int(c['id_a']), int(c['type_b']), int(c['id_b']))
+            for c in contacts}
+
+
+@pytest.mark.parametrize('settings', [{}, {'margin': 0.02}, {'broad_phase': 'grid'},
+                                      {'sphere_prefilter': False}])
+def test_check_joints_equals_step_on_the_box_poses(panda, settings):
+    base = [0.1, -0.2, 0.05, 0.0, 0.0, 0.3826834, 0.9238795]
+    world = panda_world(panda, base, **settings)
+    states = random_states(panda, 60, seed=1)
+    contacts = world.check_joints(states).contacts
+    bodies = world._robot
+    for k, q in enumerate(states):
+        step = world.step(bodies.poses(q)[0], panda.half_extents).contacts
+        mine = contacts[contacts['state'] == k]
+        assert len(mine) == len(step), k
+        for name in step.dtype.names:
+            np.testing.assert_array_equal(mine[name], step[name], err_msg=name)
+    assert len(contacts)  # random Panda states collide
+
+
+def test_the_filter_leaves_out_same_link_adjacent_and_srdf_pairs(panda):
+    world = panda_world(panda)
+    allowed = {tuple(pair) for pair in panda.allowed_box_pairs.tolist()}
+    contacts = world.check_joints(random_states(panda, 200, seed=2)).contacts
+    robot_pairs = {(c['id_a'], c['id_b']) for c in contacts if c['type_b'] == DYNAMIC}
+    assert robot_pairs and robot_pairs <= allowed
+
+
+def fcl_box(half_extents, pose):
+    x, y, z, qx, qy, qz, qw = pose
+    return fcl.CollisionObject(fcl.Box(*(2.0 * np.asarray(half_extents))),
+                               fcl.Transform(np.array([qw, qx, qy, qz]), np.array([x, y, z])))
+
+
+def test_collisions_equal_python_fcl_on_the_same_boxes(panda):
+    world = panda_world(panda)
+    states = random_states(panda, 150, seed=3)
+    ours = pair_keys(world.check_joints(states).contacts)
+    statics = [fcl_box(h, p) for p, h in zip(STATIC_POSES, STATIC_HALF_EXTENTS)]
+    theirs = set()
+    request = fcl.CollisionRequest()
+    for k, poses in enumerate(panda.box_poses(states)):
+        boxes = [fcl_box(h, p) for p, h in zip(poses, panda.half_extents)]
+        for a, b in panda.allowed_box_pairs.tolist():
+            if fcl.collide(boxes[a], boxes[b], request, fcl.CollisionResult()):
+                theirs.add((k, a, DYNAMIC, b))
+        for a, box in enumerate(boxes):
+            for s, static in enumerate(statics):
+                if fcl.collide(box, static, request, fcl.CollisionResult()):
+                    theirs.add((k, a, STATIC, s))
+    assert len(theirs) > 100
+    assert ours == theirs
+
+
+def test_a_bad_q_or_base_pose_is_refused_and_changes_nothing(panda):
+    world = panda_world(panda)
+    with pytest.raises(ValueError, match='shape'):
+        world.check_joints(np.zeros(panda.dof + 1))
+    q = np.zeros((3, panda.dof))
+    q[2, 4] = np.nan
+    with pytest.raises(ValueError, match="state 2, joint '%s'" % panda.joint_names[4]):
+        world.check_joints(q)
+    with pytest.raises(ValueError, match='quaternion'):
+        world.set_robot(panda, [0, 0, 0, 0, 0, 0, 0])
+    assert world._robot.base_pose.tolist() == [0, 0, 0, 0, 0, 0, 1]
+    with pytest.raises(ValueError, match='set_robot'):
+        World().check_joints(np.zeros(panda.dof))
+
+
+def first_sampled_collisions(world, robot, start, end, samples):
+    """Return {(id_a, type_b, id_b): first colliding s} over ``samples`` points of a segment."""
+    s = np.linspace(0.0, 1.0, samples)
+    states = start + s[:, None] * (end - start)
+    first = {}
+    for contact in world.check_joints(states).contacts:
+        key = (int(contact['id_a']), int(contact['type_b']), int(contact['id_b']))
+        first.setdefault(key, s[contact['state']])
+    return first
+
+
+@pytest.mark.parametrize('seed', range(4))
+def test_no_segment_with_a_sampled_collision_goes_unreported(panda, seed):
+    world = panda_world(panda)
+    rng = np.random.default_rng(seed)
+    limits = panda.joint_limits
+    centre = rng.uniform(limits[:, 0], limits[:, 1])
+    steps = rng.normal(0.0, 0.15, (12, panda.dof))
+    waypoints = np.clip(centre + np.cumsum(steps, axis=0), limits[:, 0], limits[:, 1])
+    contacts = world.check_trajectory(waypoints).contacts
+    reported = {}
+    for c in contacts:
+        key = (int(c['state']), int(c['id_a']), int(c['type_b']), int(c['id_b']))
+        reported[key] = min(reported.get(key, np.inf), c['toi'])
+    missed, seen = [], 0
+    for k in range(len(waypoints) - 1):
+        sampled = first_sampled_collisions(world, panda, waypoints[k], waypoints[k + 1], 400)
+        seen += len(sampled)
+        for pair, s in sampled.items():
+            toi = reported.get((k, *pair))
+            if toi is None or toi > s:
+                missed.append((k, pair, s, toi))
+    assert seen > 0
+    assert missed == []
+
+
+def test_waypoints_are_exact_and_a_free_path_reports_nothing(panda):
+    world = panda_world(panda)
+    states = random_states(panda, 3, seed=5)
+    trajectory = world.check_trajectory(states).contacts
+    at_waypoints = trajectory[trajectory['toi'] == 0.0]
+    exact = world.check_joints(states).contacts
+    assert pair_keys(exact) <= pair_keys(at_waypoints)
+    # A far-away robot, still: nothing anywhere.
+    free = panda_world(panda, [5.0, 5.0, 5.0, 0, 0, 0, 1])
+    q = np.zeros(panda.dof)
+    q[3], q[5] = -1.5, 1.5  # folded: the fingers and links 0-7 apart
+    path = np.array([q, q + 0.01, q + 0.02])
+    assert len(free.check_trajectory(path).contacts) == len(free.check_joints(path).contacts)
+
+
+def test_a_crossing_between_collision_free_waypoints_is_reported(panda):
+    """Both waypoints free, the wall between them: a waypoint-only check misses it."""
+    world = World()
+    world.set_static([[0.45, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0]], [[0.01, 0.01, 0.6]])  # a thin pole
+    world.set_robot(panda)
+    q = np.array([0.0, 0.4, 0.0, -1.5, 0.0, 1.9, 0.8, 0.0])[:panda.dof]
+    left, right = q.copy(), q.copy()
+    left[0], right[0] = -0.6, 0.6
+    waypoints = np.array([left, right])
+    exact = world.check_joints(waypoints).contacts
+    assert not any(exact['type_b'] == STATIC)
+    trajectory = world.check_trajectory(waypoints).contacts
+    hits = trajectory[(trajectory['type_b'] == STATIC) & (trajectory['state'] == 0)]
+    assert len(hits)
+    sampled = first_sampled_collisions(world, panda, left, right, 2000)
+    first = min(s for (a, kind, b), s in sampled.items() if kind == STATIC)
+    assert 0.0 < hits['toi'].min() <= first
