@@ -7,6 +7,7 @@ import contextlib
 import io
 import pathlib
 import re
+import sysconfig
 
 import numpy as np
 from std_msgs.msg import Header
@@ -19,12 +20,14 @@ DOC = REPO / 'doc'
 # Every page with ```python blocks, and the headings they stand under: each has a test here or
 # in test_readme_ros.py.
 SNIPPETS = {
-    'README.md': ['Publishing poses from a script', 'The collisions cloud'],
+    'README.md': ['Point it at your robot', 'Publishing poses from a script',
+                  'The collisions cloud'],
     'doc/design.md': ['Static collider ids'],
     'doc/python-api.md': ['Python API'],
     'doc/changing-scene.md': ['Moving colliders with static_poses',
                               'Adding, removing, resizing, enabling with parameters'],
     'doc/lifecycle.md': ['From code'],
+    'doc/robot.md': ['The robot model', 'In the World: joint states and whole trajectories'],
 }
 
 
@@ -69,6 +72,29 @@ def test_python_api_snippet():
     first = batch[batch['state'] == 0]
     for name in result.contacts.dtype.names:
         np.testing.assert_array_equal(first[name], result.contacts[name])
+
+
+def test_robot_snippets(monkeypatch):
+    """The robot page's snippets on the Panda of example-robot-data, and the README's two lines."""
+    prefix = pathlib.Path(sysconfig.get_paths()['purelib']) / 'cmeel.prefix'
+    panda = prefix / 'share' / 'example-robot-data' / 'robots' / 'panda_description'
+    monkeypatch.setenv('AMENT_PREFIX_PATH', str(prefix))
+    scene = scenes.make_scene('room', 40, 0)
+    namespace = {'urdf_path': str(panda / 'urdf' / 'panda.urdf'),
+                 'srdf_path': str(panda / 'srdf' / 'panda.srdf'),
+                 'static_poses': scene.static_poses,
+                 'static_half_extents': scene.static_half_extents,
+                 'q': np.zeros((3, 8)), 'waypoints': np.linspace(0.0, 0.5, 24).reshape(3, 8)}
+    model, world = python_snippets(DOC / 'robot.md').values()
+    exec(model[0] + world[0], namespace)
+    assert len(namespace['robot'].box_links) == 17
+    assert namespace['path'].dtype.names[0] == 'state'
+    readme, = python_snippets()['Point it at your robot']
+    exec(readme, namespace)  # a World of its own, without the obstacles
+    robot_only = namespace['world']
+    robot_only.set_robot(namespace['robot'])
+    assert np.array_equal(namespace['contacts'],
+                          robot_only.check_trajectory(namespace['waypoints']).contacts)
 
 
 def test_cloud_snippet_reads_a_real_cloud():
