@@ -330,11 +330,11 @@ def test_batches_and_the_base_pose(own):
     for state, poses in zip(states, batch):
         np.testing.assert_array_equal(robot.box_poses(state), poses)
     # The kernel with a base pose: every box moved by it.
-    from collision_node.pipeline.robot import forward_kinematics
+    from collision_node.pipeline.robot import forward_kinematics, link_frames
     base = np.array([0.5, -1.0, 2.0, *(np.array([0.1, 0.2, 0.3, 0.9]) / np.linalg.norm(
         [0.1, 0.2, 0.3, 0.9]))])
     out = np.empty((len(robot.box_links), 7))
-    forward_kinematics(robot.model, base, states[0], out)
+    forward_kinematics(robot.model, base, states[0], out, *link_frames(robot.model))
     for box in range(len(out)):
         np.testing.assert_allclose(matrix(out[box]), matrix(base) @ matrix(batch[0, box]),
                                    atol=FK_TOLERANCE)

@@ -193,7 +193,7 @@ class Robot:
         """
         states = self._states(q)
         out = np.empty((len(states), len(self.box_links), 7))
-        _box_poses_of_states(self.model, IDENTITY_POSE, states, out)
+        box_poses_of_states(self.model, IDENTITY_POSE, states, out)
         return out[0] if np.ndim(q) == 1 else out
 
     def link_poses(self, q):
@@ -208,18 +208,25 @@ class Robot:
                          for link in range(count)])
 
     def _states(self, q):
-        states = np.array(q, dtype=np.float64, ndmin=1)
+        """Return q as a (K, dof) float64 array the kernels take; ValueError naming what is wrong.
+
+        On the path of every single-state check: the sum finds a NaN or Inf in one pass
+        (an overflow to Inf only sends it to the exact search, which then finds nothing).
+        """
+        states = np.asarray(q, dtype=np.float64)
         if states.ndim == 1:
             states = states.reshape(1, -1)
         if states.ndim != 2 or states.shape[1] != self.dof:
             raise ValueError('q must have shape (%d,) or (K, %d) (joints %s), got %s'
                              % (self.dof, self.dof, ', '.join(self.joint_names),
                                 np.shape(q)))
-        bad = np.argwhere(~np.isfinite(states))
-        if len(bad):
-            raise ValueError('q has a NaN or Inf value: state %d, joint %r'
-                             % (bad[0][0], self.joint_names[bad[0][1]]))
-        return np.ascontiguousarray(states)
+        if not math.isfinite(states.sum()):
+            bad = np.argwhere(~np.isfinite(states))
+            if len(bad):
+                raise ValueError('q has a NaN or Inf value: state %d, joint %r'
+                                 % (bad[0][0], self.joint_names[bad[0][1]]))
+        # Writable too: numba compiles a second signature for a read-only array (a message's).
+        return np.require(states, np.float64, ['C', 'A', 'W'])
 
 
 def rotation_from_rpy(roll, pitch, yaw):
@@ -421,10 +428,9 @@ def _quaternion_from_rotation(r00, r01, r02, r10, r11, r12, r20, r21, r22):
 def link_transforms(model, base_pose, q, rotations, translations):
     """Write every link frame (rotation (L, 3, 3), translation (L, 3)) for one state q.
 
-    The root link's frame is ``base_pose`` (its quaternion normalised here).
+    The root link's frame is ``base_pose`` (its quaternion normalised here). No allocation:
+    a batch of states reuses the caller's two arrays.
     """
-    joint = np.empty((3, 3))  # a joint's frame before its motion: parent * origin
-    shift = np.empty(3)
     for k in range(model.order.shape[0]):
         link = model.order[k]
         parent = model.parents[link]
@@ -444,67 +450,83 @@ def link_transforms(model, base_pose, q, rotations, translations):
             for i in range(3):
                 translations[link, i] = base_pose[i]
             continue
-        for i in range(3):
-            shift[i] = translations[parent, i]
-            for j in range(3):
-                shift[i] += rotations[parent, i, j] * model.origin_translations[link, j]
-                joint[i, j] = 0.0
-                for m in range(3):
-                    joint[i, j] += rotations[parent, i, m] * model.origin_rotations[link, m, j]
         kind = model.joint_types[link]
         value = 0.0
         if kind != FIXED:
             value = model.multipliers[link] * q[model.q_indices[link]] + model.offsets[link]
         ax, ay, az = model.axes[link, 0], model.axes[link, 1], model.axes[link, 2]
-        if kind == PRISMATIC:
-            for i in range(3):
-                shift[i] += value * (joint[i, 0] * ax + joint[i, 1] * ay + joint[i, 2] * az)
+        c, s = math.cos(value), math.sin(value)
+        t = 1.0 - c
         for i in range(3):
-            translations[link, i] = shift[i]
-        if kind == REVOLUTE:
-            # Rodrigues: R = c I + s [a]x + (1 - c) a a^T.
-            c, s = math.cos(value), math.sin(value)
-            t = 1.0 - c
-            turn = ((c + t * ax * ax, t * ax * ay - s * az, t * ax * az + s * ay),
-                    (t * ax * ay + s * az, c + t * ay * ay, t * ay * az - s * ax),
-                    (t * ax * az - s * ay, t * ay * az + s * ax, c + t * az * az))
-            for i in range(3):
-                for j in range(3):
-                    rotations[link, i, j] = joint[i, 0] * turn[0][j] \
-                        + joint[i, 1] * turn[1][j] + joint[i, 2] * turn[2][j]
-        else:
-            for i in range(3):
-                for j in range(3):
-                    rotations[link, i, j] = joint[i, j]
+            # Row i of the joint's frame before its motion: parent * origin.
+            j0 = rotations[parent, i, 0] * model.origin_rotations[link, 0, 0] \
+                + rotations[parent, i, 1] * model.origin_rotations[link, 1, 0] \
+                + rotations[parent, i, 2] * model.origin_rotations[link, 2, 0]
+            j1 = rotations[parent, i, 0] * model.origin_rotations[link, 0, 1] \
+                + rotations[parent, i, 1] * model.origin_rotations[link, 1, 1] \
+                + rotations[parent, i, 2] * model.origin_rotations[link, 2, 1]
+            j2 = rotations[parent, i, 0] * model.origin_rotations[link, 0, 2] \
+                + rotations[parent, i, 1] * model.origin_rotations[link, 1, 2] \
+                + rotations[parent, i, 2] * model.origin_rotations[link, 2, 2]
+            shift = translations[parent, i] \
+                + rotations[parent, i, 0] * model.origin_translations[link, 0] \
+                + rotations[parent, i, 1] * model.origin_translations[link, 1] \
+                + rotations[parent, i, 2] * model.origin_translations[link, 2]
+            if kind == PRISMATIC:
+                shift += value * (j0 * ax + j1 * ay + j2 * az)
+            translations[link, i] = shift
+            if kind == REVOLUTE:
+                # Rodrigues: R = c I + s [a]x + (1 - c) a a^T.
+                rotations[link, i, 0] = j0 * (c + t * ax * ax) + j1 * (t * ax * ay + s * az) \
+                    + j2 * (t * ax * az - s * ay)
+                rotations[link, i, 1] = j0 * (t * ax * ay - s * az) + j1 * (c + t * ay * ay) \
+                    + j2 * (t * ay * az + s * ax)
+                rotations[link, i, 2] = j0 * (t * ax * az + s * ay) \
+                    + j1 * (t * ay * az - s * ax) + j2 * (c + t * az * az)
+            else:
+                rotations[link, i, 0], rotations[link, i, 1], rotations[link, i, 2] = j0, j1, j2
 
 
 @kernel
-def forward_kinematics(model, base_pose, q, out):
+def forward_kinematics(model, base_pose, q, out, rotations, translations):
     """Write the (B, 7) box poses of one state ``q`` (dof,) into ``out``.
 
     ``base_pose`` (7,) is the root link's pose in the world; poses are x y z qx qy qz qw with
-    unit quaternions. Never raises: the caller checks q (finite, length dof).
+    unit quaternions. ``rotations`` (L, 3, 3) and ``translations`` (L, 3) are scratch for
+    the link frames (:func:`link_frames` makes them). Never raises: the caller checks q
+    (finite, length dof).
     """
-    count = model.parents.shape[0]
-    rotations = np.empty((count, 3, 3))
-    translations = np.empty((count, 3))
     link_transforms(model, base_pose, q, rotations, translations)
-    r = np.empty((3, 3))
     for b in range(model.box_links.shape[0]):
         link = model.box_links[b]
+        r = rotations[link]
+        m = model.box_rotations[b]
         for i in range(3):
-            out[b, i] = translations[link, i]
-            for j in range(3):
-                out[b, i] += rotations[link, i, j] * model.box_translations[b, j]
-                r[i, j] = rotations[link, i, 0] * model.box_rotations[b, 0, j] \
-                    + rotations[link, i, 1] * model.box_rotations[b, 1, j] \
-                    + rotations[link, i, 2] * model.box_rotations[b, 2, j]
+            out[b, i] = translations[link, i] + r[i, 0] * model.box_translations[b, 0] \
+                + r[i, 1] * model.box_translations[b, 1] + r[i, 2] * model.box_translations[b, 2]
         out[b, 3], out[b, 4], out[b, 5], out[b, 6] = _quaternion_from_rotation(
-            r[0, 0], r[0, 1], r[0, 2], r[1, 0], r[1, 1], r[1, 2], r[2, 0], r[2, 1], r[2, 2])
+            r[0, 0] * m[0, 0] + r[0, 1] * m[1, 0] + r[0, 2] * m[2, 0],
+            r[0, 0] * m[0, 1] + r[0, 1] * m[1, 1] + r[0, 2] * m[2, 1],
+            r[0, 0] * m[0, 2] + r[0, 1] * m[1, 2] + r[0, 2] * m[2, 2],
+            r[1, 0] * m[0, 0] + r[1, 1] * m[1, 0] + r[1, 2] * m[2, 0],
+            r[1, 0] * m[0, 1] + r[1, 1] * m[1, 1] + r[1, 2] * m[2, 1],
+            r[1, 0] * m[0, 2] + r[1, 1] * m[1, 2] + r[1, 2] * m[2, 2],
+            r[2, 0] * m[0, 0] + r[2, 1] * m[1, 0] + r[2, 2] * m[2, 0],
+            r[2, 0] * m[0, 1] + r[2, 1] * m[1, 1] + r[2, 2] * m[2, 1],
+            r[2, 0] * m[0, 2] + r[2, 1] * m[1, 2] + r[2, 2] * m[2, 2])
 
 
 @kernel
-def _box_poses_of_states(model, base_pose, states, out):
+def link_frames(model):
+    """Return scratch (rotations (L, 3, 3), translations (L, 3)) for :func:`forward_kinematics`."""
+    count = model.parents.shape[0]
+    return np.empty((count, 3, 3)), np.empty((count, 3))
+
+
+@kernel
+def box_poses_of_states(model, base_pose, states, out):
     """Write the box poses of each state (K, dof) into ``out`` (K, B, 7)."""
+    count = model.parents.shape[0]
+    rotations, translations = np.empty((count, 3, 3)), np.empty((count, 3))
     for k in range(states.shape[0]):
-        forward_kinematics(model, base_pose, states[k], out[k])
+        forward_kinematics(model, base_pose, states[k], out[k], rotations, translations)

@@ -164,8 +164,17 @@ def warm_up():
             moved[:2, 0] += shift
             world.move_static(ids, moved)
             world.step(scene.half_moved(0.5), extents)
-    # The robot model's forward kinematics: one state, a batch, the link frames.
+    # The robot model's forward kinematics: one state, a batch, the link frames; then the
+    # robot in a World: joint states and trajectories with and without margins, a robot
+    # with pairs to leave out (a filter table) and one with none (no table).
     robot = Robot.from_urdf(WARM_UP_ROBOT)
     robot.box_poses(np.zeros(robot.dof))
     robot.box_poses(np.zeros((2, robot.dof)))
     robot.link_poses(np.zeros(robot.dof))
+    lone_box = Robot.from_urdf(WARM_UP_ROBOT.split('<link name="arm">')[0] + '</robot>')
+    for margin, own, arm in itertools.product((0.0, 0.1), (0.0, 0.05), (robot, lone_box)):
+        world = World(margin=margin)
+        world.set_static(scene.static_poses, scene.static_half_extents, margins=own)
+        world.set_robot(arm)
+        world.check_joints(np.zeros(arm.dof))
+        world.check_trajectory(np.zeros((2, arm.dof)))

@@ -54,8 +54,9 @@ from collision_node.pipeline.filters import (ALL_CATEGORIES, DEFAULT_CATEGORY, f
                                              PairFilter)
 from collision_node.pipeline.obb import (Boxes, InvalidBox, MAX_COORDINATE, overlap_across,
                                          pad_bounds, REASONS, set_boxes)
-from collision_node.pipeline.robot_bodies import (DEFAULT_RESOLUTION, first_uncleared_pieces,
-                                                  RobotBodies, segment_contacts)
+from collision_node.pipeline.robot_bodies import (check_joint_states, DEFAULT_RESOLUTION,
+                                                  first_uncleared_pieces, RobotBodies,
+                                                  segment_contacts)
 from collision_node.pipeline.sat import (collide_pairs, COLLIDING, empty_output, INVALID,
                                          NEAR)
 from collision_node.pipeline.small_scene import (CANDIDATES, check_scene, check_states,
@@ -183,6 +184,19 @@ class _Last(NamedTuple):
     version: int
 
 
+class _StatesPass:
+    """What batches of states read besides their input, for one version and body count."""
+
+    __slots__ = ('version', 'bodies', 'scene', 'own_margins', 'chunk_rows')
+
+    def __init__(self, version, bodies, scene, own_margins, chunks):
+        self.version = version
+        self.bodies = bodies
+        self.scene = scene  # (n_static, statics, margin, pad, sphere prefilter, filter table)
+        self.own_margins = own_margins
+        self.chunk_rows = [None] * chunks  # per chunk: Boxes with the static rows, then scratch
+
+
 class _OnePass:
     """What one-pass steps read besides their input, for one version of the World."""
 
@@ -294,6 +308,7 @@ class World:
         self._loose_buffer = PairBuffer()
         self._phase_rows = 0  # dynamic rows the phase's structure holds as they are (validate)
         self._one_pass = None  # _OnePass of the current version
+        self._states_pass = None  # _StatesPass of the last batch
         self._rebuild_static()
 
     # ------------------------------------------------------------------ settings
@@ -407,8 +422,20 @@ class World:
         base pose. Raises ValueError for a q of the wrong shape or with NaN or Inf (naming
         the state and joint), or without a robot (:meth:`set_robot`).
         """
+        start = time.perf_counter()
         bodies = self._robot_bodies()
-        return self.check_states(bodies.poses(q), bodies.robot.half_extents)
+        states = bodies.robot._states(q)
+        count = bodies.count
+        if count * (count - 1) // 2 + count * self._static.count > ONE_PASS_PAIRS:
+            return self.check_states(bodies.poses(states), bodies.robot.half_extents)
+        model, base_pose = bodies.robot.model, bodies.base_pose
+        contacts, counters = self._states_in_one_pass(
+            len(states), count,
+            lambda *scene: check_joint_states(model, base_pose, states, *scene))
+        contacts.flags.writeable = False
+        return Result(contacts, counters=(count, self._static.count, counters,
+                                          1e3 * (time.perf_counter() - start), len(states),
+                                          False))
 
     def check_trajectory(self, waypoints, resolution=DEFAULT_RESOLUTION):
         """Check a joint-space path: its W waypoints exactly, the segments between them safely.
@@ -746,28 +773,39 @@ class World:
         if bodies * (bodies - 1) // 2 + bodies * self._static.count > ONE_PASS_PAIRS:
             contacts, counters = self._states_one_by_one(states, extents)
         else:
-            contacts, counters = self._states_in_one_pass(states, extents)
+            poses = states.reshape(-1, 7)
+            contacts, counters = self._states_in_one_pass(
+                count, bodies, lambda *scene: check_states(poses, bodies, extents, *scene))
         contacts.flags.writeable = False
         return Result(contacts, counters=(bodies, self._static.count, counters,
                                           1e3 * (time.perf_counter() - start), count, False))
 
-    def _states_in_one_pass(self, states, extents):
-        """Return the contacts and counters of small ``states``, chunks of them over threads."""
-        count, bodies = states.shape[:2]
-        poses = states.reshape(-1, 7)
-        n_static = self._static.count
-        margin_arguments = self._margin_arguments()
-        checked = self._filter_table(bodies)
+    def _states_in_one_pass(self, count, bodies, check):
+        """Return the contacts and counters of ``count`` small states, chunks over threads.
 
-        def chunk(_, first, stop):
+        ``check(*arguments)`` runs small_scene.check_states (or a kernel that ends in it) on
+        its static arguments, a chunk's box rows and the chunk's range of states.
+        """
+        states_pass = self._states_pass
+        if states_pass is None or states_pass.version != self._version \
+                or states_pass.bodies != bodies:
+            box_margins, margin, pad = self._margin_arguments()
+            scene = (self._static.count, self._static.by_id, margin, pad, self._sphere_prefilter,
+                     self._filter_table(bodies))
+            states_pass = self._states_pass = _StatesPass(
+                self._version, bodies, scene, box_margins is not None, self._workers.max_chunks)
+
+        def chunk(index, first, stop):
             # Each chunk writes its states' boxes to rows of its own, after a copy of the
-            # static rows.
-            boxes = self._boxes.grown(n_static + bodies, n_static)
-            return check_states(
-                poses, bodies, extents, n_static, self._static.by_id, boxes.centers,
-                boxes.rotations, boxes.half_extents, boxes.aabbs, boxes.radii,
-                boxes.margins if margin_arguments[0] is not None else None,
-                *margin_arguments[1:], self._sphere_prefilter, checked, first, stop)
+            # static rows (kept for the next batch of this version).
+            n_static, statics, margin, pad, prefilter, checked = states_pass.scene
+            rows = states_pass.chunk_rows[index]
+            if rows is None:
+                rows = states_pass.chunk_rows[index] = self._boxes.grown(n_static + bodies,
+                                                                         n_static)
+            return check(n_static, statics, rows.centers, rows.rotations, rows.half_extents,
+                         rows.aabbs, rows.radii, rows.margins if states_pass.own_margins
+                         else None, margin, pad, prefilter, checked, first, stop)
 
         parts = self._workers.map_ranges(chunk, count, MIN_STATES_PER_CHUNK)
         for contacts, _, state, body, code, invalid in parts:
