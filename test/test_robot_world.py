@@ -13,6 +13,7 @@ import pytest
 
 from collision_node import Robot, World
 from collision_node.pipeline.contacts import DYNAMIC, STATIC
+from collision_node.pipeline.sat import signed_distance
 
 PREFIX = os.path.join(sysconfig.get_paths()['purelib'], 'cmeel.prefix')
 PANDA = os.path.join(PREFIX, 'share', 'example-robot-data', 'robots', 'panda_description')
@@ -188,3 +189,39 @@ def test_a_crossing_between_collision_free_waypoints_is_reported(panda):
     sampled = first_sampled_collisions(world, panda, left, right, 2000)
     first = min(s for (a, kind, b), s in sampled.items() if kind == STATIC)
     assert 0.0 < hits['toi'].min() <= first
+
+
+def box_frame(pose):
+    x, y, z, w = pose[3:]
+    return np.array(pose[:3]), np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+@pytest.mark.parametrize('seed', range(3))
+def test_a_reported_segment_is_within_twice_the_resolution_of_contact(panda, seed):
+    """A segment row not colliding at its toi comes from a piece whose grown boxes touch."""
+    world = panda_world(panda)
+    rng = np.random.default_rng(10 + seed)
+    limits = panda.joint_limits
+    waypoints = np.clip(rng.uniform(limits[:, 0], limits[:, 1])
+                        + np.cumsum(rng.normal(0.0, 0.2, (10, panda.dof)), axis=0),
+                        limits[:, 0], limits[:, 1])
+    resolution = 0.004
+    rows = world.check_trajectory(waypoints, resolution=resolution).contacts
+    loose = rows[(rows['depth'] == 0.0) & np.isnan(rows['distance'])]
+    assert len(loose)
+    for row in loose:
+        k, toi = row['state'], row['toi']
+        poses = panda.box_poses(waypoints[k] + toi * (waypoints[k + 1] - waypoints[k]))
+        center_a, rotation_a = box_frame(poses[row['id_a']])
+        if row['type_b'] == DYNAMIC:
+            center_b, rotation_b = box_frame(poses[row['id_b']])
+            half_b = panda.half_extents[row['id_b']]
+        else:
+            center_b, rotation_b = box_frame(np.array(STATIC_POSES[row['id_b']]))
+            half_b = np.array(STATIC_HALF_EXTENTS[row['id_b']])
+        distance = signed_distance(center_a, rotation_a, panda.half_extents[row['id_a']],
+                                   center_b, rotation_b, half_b).distance
+        assert distance <= 2 * resolution + 1e-9, (row, distance)

@@ -150,36 +150,46 @@ def first_uncleared_pieces(model, base_pose, waypoints, pairs, margins, boxes, r
     scratch = (np.empty(dof), np.empty((count, 7)), link_rotations, link_translations,
                np.empty((count, 2, 3)), np.empty(count))
     reach = np.zeros(len(centers))  # per box: sum_j |dq_j| motion_radii[b, j]; statics 0
+    # Depth-first over the pieces, left half first, so that a pair's first report is its
+    # earliest. Row d of ``pending`` lists the pairs a piece of depth d still has to clear:
+    # both halves of a piece read the row its test wrote (the left half's own pieces write
+    # only deeper rows), so the boxes are placed once per piece for all its pairs.
+    pending = np.empty((MAX_DEPTH + 1, len(pairs)), np.int64)
+    pending_count = np.zeros(MAX_DEPTH + 1, np.int64)
     stack = np.empty((MAX_DEPTH + 2, 2))
+    depths = np.empty(MAX_DEPTH + 2, np.int64)
     for k in range(waypoints.shape[0] - 1):
         for b in range(count):
             reach[b] = 0.0
             for j in range(dof):
                 reach[b] += abs(waypoints[k + 1, j] - waypoints[k, j]) * model.motion_radii[b, j]
-        # The whole segment at once for every pair: a free trajectory mostly ends here.
-        _place(model, base_pose, waypoints[k], waypoints[k + 1], 0.5, scratch, boxes)
-        for p in range(len(pairs)):
-            a, b = pairs[p, 0], pairs[p, 1]
-            if _cleared(centers, rotations, extents, a, b, 0.5 * reach[a], 0.5 * reach[b],
-                        margins[p]):
-                continue
-            stack[0, 0], stack[0, 1] = 0.0, 1.0
-            top = 1
-            while top > 0:  # left half first: the first piece found is the earliest
-                top -= 1
-                s0, s1 = stack[top, 0], stack[top, 1]
-                half = 0.5 * (s1 - s0)
-                if s0 > 0.0 or s1 < 1.0:  # the whole segment's boxes are placed already
-                    _place(model, base_pose, waypoints[k], waypoints[k + 1], s0 + half,
-                           scratch, boxes)
+        pending[0, :] = np.arange(len(pairs))
+        pending_count[0] = len(pairs)
+        stack[0, 0], stack[0, 1], depths[0] = 0.0, 1.0, 0
+        top = 1
+        while top > 0:
+            top -= 1
+            s0, s1, depth = stack[top, 0], stack[top, 1], depths[top]
+            half = 0.5 * (s1 - s0)
+            _place(model, base_pose, waypoints[k], waypoints[k + 1], s0 + half, scratch, boxes)
+            left = 0
+            for i in range(pending_count[depth]):
+                p = pending[depth, i]
+                if found[k, p] >= 0.0:  # reported in an earlier piece
+                    continue
+                a, b = pairs[p, 0], pairs[p, 1]
                 if _cleared(centers, rotations, extents, a, b, half * reach[a],
                             half * reach[b], margins[p]):
                     continue
-                if half * (reach[a] + reach[b]) <= resolution or top >= MAX_DEPTH:
+                if half * (reach[a] + reach[b]) <= resolution or depth == MAX_DEPTH:
                     found[k, p] = s0
-                    break
-                stack[top, 0], stack[top, 1] = s0 + half, s1
-                stack[top + 1, 0], stack[top + 1, 1] = s0, s0 + half
+                    continue
+                pending[depth + 1, left] = p
+                left += 1
+            if left:
+                pending_count[depth + 1] = left
+                stack[top, 0], stack[top, 1], depths[top] = s0 + half, s1, depth + 1
+                stack[top + 1, 0], stack[top + 1, 1], depths[top + 1] = s0, s0 + half, depth + 1
                 top += 2
     return found
 

@@ -293,6 +293,7 @@ class World:
         self._filter = PairFilter()
         self._filters_given = (DEFAULT_CATEGORY, ALL_CATEGORIES, np.zeros((0, 4), np.int64))
         self._robot = None  # robot_bodies.RobotBodies once set_robot gave one
+        self._segment_pairs = (-1, None, None)  # version, robot, _robot_pairs of them
         self._workers = Workers(threads)
         self._settings = Settings(octree_max_depth, octree_leaf_cooldown_ticks)
         self._phase = make_broad_phase(broad_phase, self._settings, self._workers)
@@ -454,7 +455,11 @@ class World:
         exact = self.check_joints(waypoints).contacts
         if len(waypoints) < 2:
             return Result(exact)
-        pairs, keys, margins, boxes = self._robot_pairs(bodies)
+        version, pairs_of, arguments = self._segment_pairs
+        if version != self._version or pairs_of is not bodies:  # kept while nothing changes
+            arguments = self._robot_pairs(bodies)
+            self._segment_pairs = (self._version, bodies, arguments)
+        pairs, keys, margins, boxes = arguments
         found = first_uncleared_pieces(bodies.robot.model, bodies.base_pose, waypoints, pairs,
                                        margins, boxes, max(resolution, 1e-12))
         return Result(segment_contacts(self, bodies, waypoints, exact, found, keys))
