@@ -56,12 +56,20 @@ def test_soak_of_ten_thousand_ticks_keeps_memory_flat(tmp_path):
     assert memory['growth_mb'] < MAX_GROWTH_MB, memory
 
 
+def test_a_named_scene_brings_its_own_body_count():
+    assert parse_arguments(['--scene', 'arm']).bodies == 7
+    assert parse_arguments(['--scene', 'room']).bodies == 40
+    assert parse_arguments(['--scene', 'uniform']).bodies == 1000
+    assert parse_arguments(['--scene', 'uniform', '--bodies', '64']).bodies == 64
+
+
 @pytest.mark.parametrize('arguments, complaint', [
     (['--rate', '0'], '--rate must be positive'),
     (['--duration', '-1'], '--duration must be positive'),
     (['--ticks', '0'], '--ticks must be at least 1'),
     (['--bodies', '0'], '--bodies must be at least 1'),
     (['--scene', 'nowhere'], "invalid choice: 'nowhere'"),
+    (['--scene', 'arm', '--bodies', '5'], '--bodies: the arm scene has 7 bodies, not 5'),
 ])
 def test_soak_refuses_bad_arguments(capsys, arguments, complaint):
     with pytest.raises(SystemExit) as raised:

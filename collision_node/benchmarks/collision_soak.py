@@ -37,7 +37,7 @@ from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import PointCloud2
 
 from collision_node.benchmarks.params_files import scene_parameters, write_params_file
-from collision_node.pipeline.scenes import make_scene, SCENES
+from collision_node.pipeline.scenes import make_scene, scene_body_count, SCENES
 from collision_node.ros.cdr import ENCAPSULATION_SIZE, serialize_pose_array
 from collision_node.ros.lifetime import ending_on_shutdown
 from collision_node.ros.node import INPUT_QOS  # the node's own input QoS
@@ -254,8 +254,9 @@ def parse_arguments(argv):
                         help='PoseArrays per second (default: 100)')
     parser.add_argument('--scene', choices=sorted(SCENES), default='uniform',
                         help='moving scene (default: uniform, half of its bodies static)')
-    parser.add_argument('--bodies', type=int, default=1000, metavar='N',
-                        help='body count of the scene (default: 1000)')
+    parser.add_argument('--bodies', type=int, metavar='N',
+                        help='body count of the scene (default: its own, e.g. 7 for the arm; '
+                        'else 1000)')
     parser.add_argument('--seed', type=int, default=0, help='scene seed (default: 0)')
     parser.add_argument('--broad-phase', default='auto',
                         help="the node's broad_phase (default: auto)")
@@ -271,6 +272,10 @@ def parse_arguments(argv):
             parser.error('--%s must be positive, got %s' % (name, getattr(options, name)))
     if options.ticks is not None and options.ticks < 1:
         parser.error('--ticks must be at least 1, got %d' % options.ticks)
+    try:
+        options.bodies = scene_body_count(options.scene, options.bodies)
+    except ValueError as error:
+        parser.error('--bodies: %s' % error)
     if options.bodies < 1:
         parser.error('--bodies must be at least 1, got %d' % options.bodies)
     return options

@@ -271,8 +271,23 @@ def _quaternion(rotation):
 
 SCENES = {'uniform': uniform, 'clustered': clustered, 'flying_out': flying_out,
           'paper000': paper000, 'room': room, 'arm': arm}
-# Scenes whose body count is part of the scene: the pose publisher's default.
+# Scenes whose body count is part of the scene: their default; the arm's is its only one.
 SCENE_BODY_COUNTS = {'room': ROOM_DYNAMIC_COUNT, 'arm': ARM_LINK_COUNT}
+FIXED_BODY_COUNTS = {'arm': ARM_LINK_COUNT}
+
+
+def scene_body_count(name, bodies=None, default=1000):
+    """Return the body count of scene ``name`` asked for as ``bodies``.
+
+    None: the scene's own count (:data:`SCENE_BODY_COUNTS`), else ``default``. ValueError
+    when the scene fixes its count (a robot has its links) and ``bodies`` is another one.
+    """
+    fixed = FIXED_BODY_COUNTS.get(name)
+    if bodies is None:
+        return SCENE_BODY_COUNTS.get(name, default)
+    if fixed is not None and bodies != fixed:
+        raise ValueError('the %s scene has %d bodies, not %d' % (name, fixed, bodies))
+    return bodies
 
 
 def make_scene(name, n, seed=0):

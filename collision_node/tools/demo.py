@@ -20,7 +20,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
-from collision_node.pipeline.scenes import SCENE_BODY_COUNTS
+from collision_node.pipeline.scenes import scene_body_count, SCENE_BODY_COUNTS
 from collision_node.ros.diagnostics import LEVEL_NAMES, STATUS_SUFFIX
 from collision_node.ros.lifetime import RosProgram
 from collision_node.tools.processes import stop_process
@@ -141,10 +141,10 @@ def parse_arguments(argv):
     options = parser.parse_args(argv)
     if options.duration is not None and not options.duration > 0.0:
         parser.error('--duration must be positive, got %s' % options.duration)
-    if options.bodies is None:
-        options.bodies = SCENE_BODY_COUNTS[options.scene]
-    elif options.scene == 'arm' and options.bodies != SCENE_BODY_COUNTS['arm']:
-        parser.error('--bodies: the arm has %d links' % SCENE_BODY_COUNTS['arm'])
+    try:
+        options.bodies = scene_body_count(options.scene, options.bodies)
+    except ValueError as error:
+        parser.error('--bodies: %s' % error)
     if options.bodies < 0:
         parser.error('--bodies must not be negative, got %d' % options.bodies)
     if not options.rate > 0.0:

@@ -21,7 +21,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
-from collision_node.pipeline.scenes import make_scene, SCENE_BODY_COUNTS, SCENES
+from collision_node.pipeline.scenes import (make_scene, scene_body_count, SCENE_BODY_COUNTS,
+                                            SCENES)
 from collision_node.ros.cdr import serialize_pose_array
 from collision_node.tools.processes import spin_until_finished
 
@@ -139,9 +140,7 @@ def main(args=None):
         if options.npy is not None:
             frames = npy_frames(options.npy)
         else:
-            bodies = options.bodies
-            if bodies is None:
-                bodies = SCENE_BODY_COUNTS.get(options.scene, DEFAULT_BODIES)
+            bodies = scene_body_count(options.scene, options.bodies, DEFAULT_BODIES)
             frames = scene_frames(options.scene, bodies, options.seed)
     except ValueError as error:
         parser.error(str(error))
