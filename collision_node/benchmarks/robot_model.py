@@ -280,10 +280,13 @@ class MuJoCo(robot.MuJoCo):
         self.setup = (
             'MuJoCo %s: a body per link at its URDF joint origin, a hinge or slide on its URDF '
             "axis, the boxes as geoms at their poses in their links, the static boxes as world "
-            'geoms, `<exclude>` for the %d filtered link pairs; per state `qpos` written (the '
+            'geoms, `<exclude>` for the %d filtered link pairs (the root link welded to the '
+            'world: MuJoCo pairs no two static bodies, so its %d pairs with the static boxes, '
+            'free in every state here, are not tested); per state `qpos` written (the '
             "mimic finger's entry set equal to the first finger's, as the URDF's mimic says), "
             "`mj_kinematics` + `mj_collision`, the contacts' geom pairs copied out; %s" % (
-                mujoco.__version__, len(panda.disabled_link_pairs), (
+                mujoco.__version__, len(panda.disabled_link_pairs), len(STATIC_NAMES) * np.sum(
+                    panda.model.box_links == panda.model.order[0]), (
                     "each box an 8-vertex convex mesh (MuJoCo's general convex collider)"
                     if meshes else "box geoms (MuJoCo's box-box collider)")))
         self._model, self._bodies, self._qpos = mujoco_model(mujoco, panda, urdf_path, meshes)
@@ -541,7 +544,9 @@ def robot_model_rows(states_per_round, batch_states, rounds, segments, seed=0, p
             row.update(states_per_call=1, states=len(taken))
             if method.name == OURS_JOINTS:
                 row.update(compared_states=len(taken), states_differing=0, same_answers=True,
-                           boundary_only=False, reference_answers=True)
+                           boundary_only=False, reference_answers=True,
+                           boxes=len(panda.half_extents), dof=panda.dof,
+                           allowed_pairs=len(panda.allowed_box_pairs))
             elif ours is not None:
                 row.update(robot.compare(every_state, ours, answers[method.name], distance,
                                          _margin))
