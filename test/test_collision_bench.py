@@ -517,7 +517,8 @@ def test_robot_model_targets_are_judged_on_the_measured_numbers():
     assert (one['passed'], batch['passed'], path['passed']) == (True, False, True)
     assert one['measured'].startswith('0.6x') and path['measured'].startswith('2.5x')
     rows[0].update(same_answers=False, states_differing=1, only_ours=1, only_peer=0,
-                   colliding_pairs_differing=1, boundary_only=False)  # quick but wrong
+                   colliding_pairs_differing=1, boundary_only=False,
+                   worst_gap_m=0.01)  # quick but wrong: not met
     assert report.robot_model_targets(rows)[0]['passed'] is False
     rows[3]['vs_waypoints'] = 3.5
     assert report.robot_model_targets(rows)[2]['passed'] is False

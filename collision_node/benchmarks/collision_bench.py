@@ -586,7 +586,7 @@ class Bench:
         return rows
 
     def robot_model(self):
-        """Time the Panda of example-robot-data: ours, MuJoCo, pinocchio + coal (robot_model.py)."""
+        """Time the Panda of example-robot-data: ours, MuJoCo, pinocchio + coal (robot_model)."""
         plan = self.plan
         rows = self._guarded('robot_model', robot_model_rows, plan.panda_states,
                              plan.panda_batch_states, plan.panda_rounds, plan.panda_segments,
@@ -682,7 +682,7 @@ def machine():
         versions['python-fcl'] = fcl_version
     except ImportError:
         versions['python-fcl'] = None
-    for name in ('coal', 'mujoco'):
+    for name in ('coal', 'mujoco', 'pin', 'example-robot-data'):
         try:
             versions[name] = metadata.version(name)
         except metadata.PackageNotFoundError:

@@ -535,8 +535,8 @@ def _robot_model_markdown(rows, settings):
         'states. Every method is given q and places the boxes itself (forward kinematics '
         "inside the clock). Same answers: every state's set of colliding pairs against "
         "ours.".format(panda.get('boxes', '?'), panda.get('dof', '?'),
-                       panda.get('allowed_pairs', '?'), settings['panda_states'], settings['panda_batch_states'],
-                       settings['panda_rounds']), '',
+                       panda.get('allowed_pairs', '?'), settings['panda_states'],
+                       settings['panda_batch_states'], settings['panda_rounds']), '',
         table([('method', _get('method')), ('states per call', _get('states_per_call')),
                ('states', _get('states')), ('µs per state', _get('per_state_us')),
                ('mean µs', _get('mean_us')), ('× MuJoCo', _get('vs_mujoco')),
@@ -549,7 +549,7 @@ def _robot_model_markdown(rows, settings):
                         else '', row['setup']) for row in states if 'setup' in row]
     for row in states:
         if 'placement_error' in row:
-            lines.append('- pinocchio\'s box placements against our forward kinematics, 20 '
+            lines.append("- pinocchio's box placements against our forward kinematics, 20 "
                          'random states: largest difference %.2g (m, and rotation matrix '
                          'entries)' % row['placement_error'])
     lines += ['', 'The trajectory: a smooth path of {} waypoints (two sines per joint, the '

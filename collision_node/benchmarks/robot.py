@@ -166,10 +166,11 @@ def compare(states, ours, theirs, distance=None, margin=None):
     """Compare a method's pair sets with ours, state by state.
 
     ``distance(state, key)`` is a pair's exact signed distance in a state and ``margin(key)``
-    its margin (default: the arm's, ``states`` its link poses). Returns the counts: states compared and differing, pairs only ours / only theirs report,
-    differing pairs that collide (exact distance <= 0), the largest distance of a differing
-    pair from its margin's boundary (m; None when none differ) and whether every difference
-    lies on the boundary (within BOUNDARY_M).
+    its margin (default: the arm's, ``states`` its link poses). Returns the counts: states
+    compared and differing, pairs only ours / only theirs report, differing pairs that
+    collide (exact distance <= 0), the largest distance of a differing pair from its
+    margin's boundary (m; None when none differ) and whether every difference lies on the
+    boundary (within BOUNDARY_M).
     """
     distance = distance or exact_distance
     margin = margin or pair_margin
@@ -214,8 +215,8 @@ class Method:
     ``inputs(states)`` turns (S, 7, 7) poses into the method's own input (not timed);
     ``call(inputs, k)`` answers state k (timed); ``collect(raw)``, right after the clock
     stops, reads what a library keeps only until its next call; ``answer(raw)`` turns what
-    it returned into a set of contact keys (not timed). A batch method's ``call(inputs)`` answers every state
-    and ``answers(raw, count)`` returns their sets.
+    it returned into a set of contact keys (not timed). A batch method's ``call(inputs)``
+    answers every state and ``answers(raw, count)`` returns their sets.
     """
 
     batch = False

@@ -4,7 +4,7 @@ The Panda of example-robot-data (URDF and SRDF, its meshes as boxes: 17 boxes on
 joints, the second finger a mimic of the first) stands on a table, a wall in front of it
 and a shelf beside it (STATIC_NAMES). Its self-collision filter (same link, adjacent links,
 the SRDF's pairs) leaves 44 box pairs, and 17 x 3 robot-static pairs are tested. Per random
-joint state within the limits (seeded, about half of them colliding) every method answers
+joint state within the limits (seeded, about a third of them colliding) every method answers
 "which pairs collide", from q:
 
 * ours, one state per call: ``World.set_robot(robot)``, then ``World.check_joints(q)`` with
@@ -44,8 +44,8 @@ import numpy as np
 
 from collision_node.benchmarks import robot
 from collision_node.benchmarks.robot import (
-    _library, _time_states, answers_text, BOUNDARY_M, contact_keys, Method, pair_key, rotation,
-    Unavailable, WARM_STATES)
+    _library, _time_states, answers_text, contact_keys, Method, pair_key, rotation, Unavailable,
+    WARM_STATES)
 from collision_node.pipeline import urdf
 from collision_node.pipeline.robot import pose_from, Robot
 from collision_node.pipeline.sat import signed_distance
@@ -210,7 +210,8 @@ def mujoco_model(mujoco, panda, urdf_path, meshes):
         return ' '.join('%.17g' % value for value in np.ravel(values))
 
     def placed(rotation_matrix, translation):
-        pose = pose_from(np.asarray(rotation_matrix, np.float64), np.asarray(translation, np.float64))
+        pose = pose_from(np.asarray(rotation_matrix, np.float64),
+                         np.asarray(translation, np.float64))
         return 'pos="%s" quat="%s"' % (numbers(pose[:3]), numbers(pose[[6, 3, 4, 5]]))
 
     def shape(name, half):
@@ -305,7 +306,7 @@ class PinCoal(Method):
         coal = _library('coal', robot.COAL_HINT)
         self.setup = (
             'pinocchio %s, coal %s: `pin.buildModelFromUrdf(urdf, mimic=True)` (the same q), '
-            'a GeometryModel of `coal.Box` es at our boxes\' poses in their link frames and the '
+            "a GeometryModel of `coal.Box` geometries at our boxes' poses in their link frames and the "
             'static boxes on the universe joint, %d collision pairs (the allowed ones and every '
             'robot-static pair); per state `pin.computeCollisions(model, data, geometry_model, '
             'geometry_data, q, False)`, which places the boxes by forward kinematics and tests '
@@ -590,7 +591,7 @@ def _one_by_one(panda, states):
 def false_alarm_text(row):
     """Say what the false-alarm row found."""
     return ('{:,} random short segments ({:,} with a sampled collision): {:,} (segment, pair) '
-            'reports, {:,} of them never colliding at the referee\'s {} samples ({:.3g} %); '
+            "reports, {:,} of them never colliding at the referee's {} samples ({:.3g} %); "
             '{:,} pairs the referee found unreported'.format(
                 row['segments'], row['colliding_segments'], row['reports'],
                 row['false_alarms'], row['referee_samples'], 100.0 * row['false_alarm_rate'],
