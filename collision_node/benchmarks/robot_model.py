@@ -306,11 +306,12 @@ class PinCoal(Method):
         coal = _library('coal', robot.COAL_HINT)
         self.setup = (
             'pinocchio %s, coal %s: `pin.buildModelFromUrdf(urdf, mimic=True)` (the same q), '
-            "a GeometryModel of `coal.Box` geometries at our boxes' poses in their link frames and the "
-            'static boxes on the universe joint, %d collision pairs (the allowed ones and every '
-            'robot-static pair); per state `pin.computeCollisions(model, data, geometry_model, '
-            'geometry_data, q, False)`, which places the boxes by forward kinematics and tests '
-            "every pair; the pairs' `isCollision()` read after the clock stops" % (
+            "a GeometryModel of `coal.Box` geometries at our boxes' poses in their link frames "
+            'and the static boxes on the universe joint, %d collision pairs (the allowed ones and '
+            'every robot-static pair); per state `pin.computeCollisions(model, data, '
+            'geometry_model, geometry_data, q, False)`, which places the boxes by forward '
+            "kinematics and tests every pair; the pairs' `isCollision()` read after the clock "
+            'stops' % (
                 pin.__version__, coal.__version__ if hasattr(coal, '__version__') else '',
                 len(panda.allowed_box_pairs) + len(panda.half_extents) * len(STATIC_NAMES)))
         self.model = model = pin.buildModelFromUrdf(urdf_path, True)
