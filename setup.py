@@ -17,7 +17,8 @@ setup(
     extras_require={
         # pin and example-robot-data: the robot model's FK reference and its robots.
         'test': ['pytest', 'hypothesis', 'python-fcl', 'coal', 'pin', 'example-robot-data'],
-        'bench': ['python-fcl', 'coal', 'mujoco', 'matplotlib'],  # robot section: coal, mujoco
+        # robot sections: coal, mujoco; robot_model: pin, example-robot-data (its Panda).
+        'bench': ['python-fcl', 'coal', 'mujoco', 'matplotlib', 'pin', 'example-robot-data'],
     },
     zip_safe=False,
     maintainer='collision_node maintainers',

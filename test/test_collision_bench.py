@@ -9,7 +9,7 @@ import pytest
 from rclpy.parameter import parameter_dict_from_yaml_file, parameter_value_to_python
 
 from collision_node.benchmarks import collision_bench as bench
-from collision_node.benchmarks import report, robot
+from collision_node.benchmarks import report, robot, robot_model
 from collision_node.benchmarks.accuracy import (
     AABBS_ONLY, BROAD_ONLY, CLASSIC, contact_keys, MODES, pair_errors, pair_keys, SAT_FLOAT32,
     SAT_FLOAT64, SPHERES_ONLY)
@@ -202,7 +202,7 @@ def test_python_fcl_finds_the_same_pairs(tiny_run):
 
 def test_every_target_is_listed(tiny_run):
     _, _, results = tiny_run
-    assert len(results['targets']) == 11
+    assert len(results['targets']) == 14
     for target in results['targets']:
         assert target['passed'] in (True, False, None)
 
@@ -414,3 +414,131 @@ def test_robot_mujoco_model_gives_each_pair_the_worlds_margin():
             assert margins.sum() == pytest.approx(robot.pair_margin((id_a, type_b, id_b)),
                                                   abs=1e-15)
         assert model.nexclude == len(robot.ARM_IGNORED_PAIRS)
+
+
+# --- the robot_model section (the Panda) ---------------------------------------------------
+
+PANDA_PEERS = {robot_model.MUJOCO_MESH: robot.MUJOCO_HINT, robot_model.MUJOCO_BOX:
+               robot.MUJOCO_HINT, robot_model.PIN_COAL: robot_model.PIN_HINT}
+
+
+def test_robot_model_section_gives_every_peer_the_same_answers(tiny_run):
+    _, output, results = tiny_run
+    rows = {row['method']: row for row in results['robot_model']}
+    if 'skipped' in rows[robot_model.OURS_JOINTS]:  # example-robot-data not installed
+        assert rows[robot_model.OURS_JOINTS]['skipped'] == robot_model.PANDA_HINT
+        return
+    assert list(rows) == [robot_model.OURS_JOINTS, robot_model.OURS_BATCH,
+                          robot_model.MUJOCO_MESH, robot_model.MUJOCO_BOX,
+                          robot_model.PIN_COAL, robot_model.TRAJECTORY, robot_model.WAYPOINTS,
+                          robot_model.FALSE_ALARMS]
+    plan = bench.PLANS['tiny']
+    ours = rows[robot_model.OURS_JOINTS]
+    assert (ours['boxes'], ours['dof'], ours['allowed_pairs']) == (17, 8, 44)
+    assert ours['states'] == plan.panda_states * plan.panda_rounds
+    assert 0 < ours['colliding_states'] < 1  # a mix of colliding and free states
+    batch = rows[robot_model.OURS_BATCH]
+    assert batch['states_per_call'] == plan.panda_batch_states
+    assert batch['compared_states'] == plan.panda_batch_states * plan.panda_rounds
+    assert batch['same_answers'] and batch['states_differing'] == 0
+    for name, hint in PANDA_PEERS.items():
+        row = rows[name]
+        if 'skipped' in row:
+            assert row['skipped'] == hint
+            continue
+        assert row['compared_states'] == row['states'] == ours['states']
+        assert row['same_answers'] and row['states_differing'] == 0, row
+        assert row['vs_mujoco'] > 0
+    if 'per_state_us' in rows[robot_model.PIN_COAL]:
+        assert rows[robot_model.PIN_COAL]['placement_error'] < 1e-9
+    path, alone = rows[robot_model.TRAJECTORY], rows[robot_model.WAYPOINTS]
+    assert path['waypoints'] == alone['waypoints'] == robot_model.TRAJECTORY_WAYPOINTS
+    assert path['reported_pairs'] == 0 and path['per_call_ms'] > 0
+    assert path['vs_waypoints'] == path['per_call_ms'] / alone['per_call_ms']
+    alarms = rows[robot_model.FALSE_ALARMS]
+    assert alarms['segments'] == plan.panda_segments and alarms['misses'] == 0
+    assert 0 <= alarms['false_alarms'] <= alarms['reports']
+    markdown = (output / 'results.md').read_text()
+    assert '## Panda from its URDF' in markdown
+    targets = [t for t in results['targets'] if t['target'].startswith('Panda')]
+    assert len(targets) == 3
+    assert targets[2]['passed'] == (path['vs_waypoints'] <= report.PANDA_TRAJECTORY_MAX_RATIO)
+
+
+def test_robot_model_section_skips_each_peer_not_installed(monkeypatch):
+    for module in ('mujoco', 'pinocchio', 'coal'):
+        monkeypatch.setitem(sys.modules, module, None)  # import raises ImportError
+    rows = robot_model.robot_model_rows(3, 5, 1, 2, progress=lambda message: None)
+    by_method = {row['method']: row for row in rows}
+    for name, hint in PANDA_PEERS.items():
+        assert by_method[name] == {'method': name, 'skipped': hint}
+    assert 'vs_mujoco' not in by_method[robot_model.OURS_JOINTS]
+    assert by_method[robot_model.OURS_BATCH]['same_answers']
+    one, batch, path = report.robot_model_targets(rows)
+    assert one['passed'] is batch['passed'] is None
+    assert one['measured'] == 'not measured: ' + robot.MUJOCO_HINT
+    assert path['passed'] in (True, False)  # ours alone
+    settings = bench.PLANS['tiny']._asdict()
+    assert robot.MUJOCO_HINT in '\n'.join(report._robot_model_markdown(rows, settings))
+
+
+def test_robot_model_section_without_the_panda_says_why(monkeypatch):
+    def missing():
+        raise robot.Unavailable(robot_model.PANDA_HINT)
+    monkeypatch.setattr(robot_model, 'panda_files', missing)
+    rows = robot_model.robot_model_rows(3, 5, 1, 2, progress=lambda message: None)
+    assert rows == [{'method': robot_model.OURS_JOINTS, 'skipped': robot_model.PANDA_HINT}]
+    assert all(target['passed'] is None for target in report.robot_model_targets(rows))
+    settings = bench.PLANS['tiny']._asdict()
+    assert robot_model.PANDA_HINT in '\n'.join(report._robot_model_markdown(rows, settings))
+
+
+def test_robot_model_compare_counts_a_differing_state():
+    panda = robot_model.load_panda()
+    q = np.zeros((1, panda.dof))
+    table = (0, STATIC, robot_model.STATIC_NAMES.index('table'))
+    found = robot.compare(q, [set()], [{table}], robot_model._distance(panda),
+                          robot_model._margin)
+    assert found['states_differing'] == 1 and found['only_peer'] == 1
+    assert not found['boundary_only'] and found['colliding_pairs_differing'] == 0
+
+
+def test_robot_model_targets_are_judged_on_the_measured_numbers():
+    mujoco = {'method': robot.MUJOCO_BOX, 'per_state_us': 10.0, 'mujoco_reference': True}
+    same = {'same_answers': True, 'states_differing': 0, 'compared_states': 10}
+    rows = [dict(same, method=robot_model.OURS_JOINTS, per_state_us=6.0, states_per_call=1),
+            dict(same, method=robot_model.OURS_BATCH, per_state_us=2.0, states_per_call=4000),
+            mujoco,
+            {'method': robot_model.TRAJECTORY, 'kind': 'trajectory', 'waypoints': 100,
+             'per_call_ms': 2.0, 'vs_waypoints': 2.5},
+            {'method': robot_model.WAYPOINTS, 'kind': 'trajectory', 'waypoints': 100,
+             'per_call_ms': 0.8, 'vs_waypoints': 1.0}]
+    one, batch, path = report.robot_model_targets(rows)
+    assert (one['passed'], batch['passed'], path['passed']) == (True, False, True)
+    assert one['measured'].startswith('0.6x') and path['measured'].startswith('2.5x')
+    rows[0].update(same_answers=False, states_differing=1, only_ours=1, only_peer=0,
+                   colliding_pairs_differing=1, boundary_only=False,
+                   worst_gap_m=0.01)  # quick but wrong: not met
+    assert report.robot_model_targets(rows)[0]['passed'] is False
+    rows[3]['vs_waypoints'] = 3.5
+    assert report.robot_model_targets(rows)[2]['passed'] is False
+    assert [t['passed'] for t in report.robot_model_targets(None)] == [None, None, None]
+
+
+def test_robot_model_mujoco_tree_places_the_boxes_as_ours():
+    mujoco = pytest.importorskip('mujoco')
+    panda = robot_model.load_panda()
+    _, urdf_path, _ = robot_model.panda_files()
+    model, geoms, (qpos_map, qpos_offset) = robot_model.mujoco_model(
+        mujoco, panda, urdf_path, meshes=False)
+    data = mujoco.MjData(model)
+    assert model.nexclude == len(panda.disabled_link_pairs)
+    for q in robot_model.random_states(panda, 5, np.random.default_rng(4)):
+        data.qpos[:] = qpos_map @ q + qpos_offset
+        mujoco.mj_kinematics(model, data)
+        poses = panda.box_poses(q)
+        for geom, (kind, index) in geoms.items():
+            if kind == DYNAMIC:
+                np.testing.assert_allclose(data.geom_xpos[geom], poses[index, :3], atol=1e-12)
+                np.testing.assert_allclose(data.geom_xmat[geom].reshape(3, 3),
+                                           robot.rotation(poses[index, 3:]), atol=1e-12)

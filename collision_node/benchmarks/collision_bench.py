@@ -5,8 +5,9 @@
 
 Writes OUTPUT/results.json (every number), OUTPUT/results.md (the tables, the performance
 targets with pass/fail, the command that reproduces them) and OUTPUT/time_vs_error.png.
-python-fcl, coal, MuJoCo and matplotlib are optional (the ``bench`` extra, benchmark-only):
-without them the fcl table, the robot section's peers and the plot are left out and say why.
+python-fcl, coal, MuJoCo, pinocchio and matplotlib are optional (the ``bench`` extra,
+benchmark-only), and example-robot-data (the ``test`` extra): without them the fcl table, the
+robot sections' peers (or the Panda) and the plot are left out and say why.
 Scenes come from :mod:`collision_node.pipeline.scenes`, seeded.
 """
 import argparse
@@ -26,6 +27,7 @@ from collision_node.benchmarks import report
 from collision_node.benchmarks.accuracy import accuracy_rows
 from collision_node.benchmarks.fcl_reference import compare_with_fcl, fcl_available, INSTALL_HINT
 from collision_node.benchmarks.robot import robot_rows
+from collision_node.benchmarks.robot_model import robot_model_rows
 from collision_node.benchmarks.runs import (
     Limits, run_all_pairs_sat, run_world, WARM_UP_BODIES, WARM_UP_TICKS, warmed)
 from collision_node.benchmarks.stages import profile_stages
@@ -38,7 +40,7 @@ OCTREE_DEPTHS = tuple(range(1, 10))  # Table 1 of "Discrete Collision Algorithms
 PAPER000_OCTREE_DEPTH = 4            # the octree of "Engine Algorithms" ran at depth 4
 DEFAULT_PHASE = 'auto'               # what the node uses unless told otherwise
 SECTIONS = ('paper001', 'octree_depths', 'paper000', 'scenes', 'accuracy', 'fcl', 'profile',
-            'threads', 'margins', 'continuous', 'static_moves', 'robot')
+            'threads', 'margins', 'continuous', 'static_moves', 'robot', 'robot_model')
 THREAD_COUNTS = (1, 2)  # the World's threads: one, and both cores of a 2-core machine
 # The margins section: margins as fractions of the mean box size (its full side), and one run
 # with half the dynamic pairs masked out (categories 1 and 2 in turn, each accepting its own).
@@ -77,6 +79,10 @@ class Plan(NamedTuple):
     robot_states: int          # the arm (config/arm.yaml): states per round, one per call,
     robot_batch_states: int    # and K, the states of one World.check_states call,
     robot_rounds: int          # in this many rounds (each on states a little later)
+    panda_states: int          # the Panda (robot_model.py): random states per round, one per
+    panda_batch_states: int    # call, and K, the states of one World.check_joints call,
+    panda_rounds: int          # in this many rounds,
+    panda_segments: int        # then this many random short segments for the false alarms
     budget_s: float            # a run stops early (marked truncated) after this wall time
     # A run expected to take longer per tick is skipped; one stops after a tick that took
     # longer. Keep it >= 1 s: then a skipped run misses every performance target even if its
@@ -107,6 +113,7 @@ PLANS = {
         continuous_sizes=((1000, 200), (10000, 100)),
         static_move_sizes=((10000, 200), (100000, 20)),
         robot_states=400, robot_batch_states=4000, robot_rounds=40,
+        panda_states=400, panda_batch_states=4000, panda_rounds=40, panda_segments=2000,
         budget_s=120.0, max_tick_s=5.0),
     'quick': Plan(
         flying_out_sizes=(128, 256, 512, 1024), flying_out_ticks=60, flying_out_dt=5.0 / 60,
@@ -125,6 +132,7 @@ PLANS = {
         continuous_sizes=((1000, 100), (10000, 40)),
         static_move_sizes=((10000, 100),),
         robot_states=400, robot_batch_states=4000, robot_rounds=20,
+        panda_states=200, panda_batch_states=4000, panda_rounds=8, panda_segments=200,
         budget_s=3.0, max_tick_s=1.0),
     # For the tests: every section on small scenes, in seconds.
     'tiny': Plan(
@@ -140,6 +148,7 @@ PLANS = {
         continuous_sizes=((300, 5),),
         static_move_sizes=((300, 10),),
         robot_states=20, robot_batch_states=50, robot_rounds=2,
+        panda_states=20, panda_batch_states=50, panda_rounds=2, panda_segments=20,
         budget_s=5.0, max_tick_s=1.0),
 }
 
@@ -576,6 +585,23 @@ class Bench:
                 {True: 'PASS', False: 'FAIL', None: 'n/a'}[target['passed']]))
         return rows
 
+    def robot_model(self):
+        """Time the Panda of example-robot-data: ours, MuJoCo, pinocchio + coal (robot_model)."""
+        plan = self.plan
+        rows = self._guarded('robot_model', robot_model_rows, plan.panda_states,
+                             plan.panda_batch_states, plan.panda_rounds, plan.panda_segments,
+                             self.seed, self.progress)
+        if isinstance(rows, dict):
+            return [rows]
+        for row in rows:
+            if 'error' in row:
+                self.errors.append('robot_model %s: %s' % (row['method'], row['error']))
+        for target in report.robot_model_targets(rows):
+            self.progress('robot_model target: %s: %s: %s' % (
+                target['target'], target['measured'],
+                {True: 'PASS', False: 'FAIL', None: 'n/a'}[target['passed']]))
+        return rows
+
     def _quickest_phase(self, scene_name, bodies):
         """Name the phase with the lowest median tick at the largest size <= bodies."""
         rows = [row for section in ('paper001', 'scenes') for row in self.results.get(section, [])
@@ -656,7 +682,7 @@ def machine():
         versions['python-fcl'] = fcl_version
     except ImportError:
         versions['python-fcl'] = None
-    for name in ('coal', 'mujoco'):
+    for name in ('coal', 'mujoco', 'pin', 'example-robot-data'):
         try:
             versions[name] = metadata.version(name)
         except metadata.PackageNotFoundError:

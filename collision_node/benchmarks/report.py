@@ -3,7 +3,7 @@ import json
 import math
 import os
 
-from collision_node.benchmarks import robot
+from collision_node.benchmarks import robot, robot_model
 from collision_node.benchmarks.stages import SETTLE_TICKS
 
 # The performance targets, in the order doc/benchmarks.md lists them.
@@ -18,6 +18,11 @@ SEED_SCENE_TARGET_TPS = 1000.0
 ROBOT_STEP_MAX_VS_MUJOCO = 0.7    # the arm, one World.step per state: x MuJoCo's time per state
 ROBOT_BATCH_MAX_VS_MUJOCO = 0.15  # World.check_states, per state
 ROBOT_BATCH_STATES = 4000         # ... with this many states per call
+PANDA_ONE_MAX_VS_MUJOCO = 0.7     # the Panda, check_joints one state per call, FK included
+PANDA_BATCH_MAX_VS_MUJOCO = 0.1   # ... K states per call, per state
+PANDA_BATCH_STATES = 4000         # ... with this many states per call
+PANDA_TRAJECTORY_MAX_RATIO = 3.0  # check_trajectory: x check_joints on its waypoints alone
+PANDA_WAYPOINTS = 100
 
 
 def write(directory, results):
@@ -102,6 +107,7 @@ def targets(results):
                       'measured': '%.3g x (%.3g ms)' % (row[key], row['median_ms'])})
 
     found += robot_targets(results.get('robot'))
+    found += robot_model_targets(results.get('robot_model'))
 
     for what in ('PoseArray in -> collisions out through ROS, 10,000 bodies: <= 5 ms median',
                  'JIT: nothing compiles during a tick; node ready <= 5 s with a warm cache',
@@ -155,6 +161,63 @@ def robot_targets(rows):
             found.append({'target': what, 'passed': bool(ratio <= limit), 'measured': measured})
             continue
         found.append({'target': what, 'measured': measured, 'passed': None})
+    return found
+
+
+def robot_model_targets(rows):
+    """Judge the Panda's three targets (robot_model.py); ``passed`` None when not measured.
+
+    The two per-state targets divide by the MuJoCo row the ratios use; the trajectory target
+    divides check_trajectory's median call by check_joints' on the same waypoints.
+    """
+    states = [
+        ('Panda, one joint state per call (World.check_joints), FK included: <= %g x MuJoCo '
+         'per state' % PANDA_ONE_MAX_VS_MUJOCO, robot_model.OURS_JOINTS,
+         PANDA_ONE_MAX_VS_MUJOCO, 1),
+        ('Panda, K = {:,} joint states per call (World.check_joints): <= {:g} x MuJoCo per '
+         'state, per state'.format(PANDA_BATCH_STATES, PANDA_BATCH_MAX_VS_MUJOCO),
+         robot_model.OURS_BATCH, PANDA_BATCH_MAX_VS_MUJOCO, PANDA_BATCH_STATES)]
+    trajectory = ('Panda, a %d-waypoint collision-free trajectory (World.check_trajectory), '
+                  'segments included: <= %g x the time of its %d waypoints alone'
+                  % (PANDA_WAYPOINTS, PANDA_TRAJECTORY_MAX_RATIO, PANDA_WAYPOINTS))
+    if rows is None:
+        return [{'target': what, 'measured': 'not measured in this run', 'passed': None}
+                for what in [target[0] for target in states] + [trajectory]]
+    by_method = {row.get('method'): row for row in rows}
+    reference = next((row for row in rows if row.get('mujoco_reference')), None)
+    found = []
+    for what, method, limit, states_per_call in states:
+        ours = by_method.get(method, {'skipped': 'not run'})
+        if 'per_state_us' not in ours:
+            measured = 'not measured: %s' % (ours.get('skipped') or ours.get('error'))
+        elif reference is None:
+            measured = 'not measured: %s' % ('; '.join(sorted({
+                by_method[name].get('skipped') or by_method[name].get('error', 'not run')
+                for name in (robot.MUJOCO_MESH, robot.MUJOCO_BOX) if name in by_method}))
+                or 'MuJoCo not run')
+        elif ours['states_per_call'] != states_per_call:
+            measured = 'not measured in this run (%d states per call)' % ours[
+                'states_per_call']
+        else:
+            ratio = ours['per_state_us'] / reference['per_state_us']
+            found.append({'target': what, 'passed': bool(ratio <= limit and ours[
+                'same_answers']), 'measured': '%.3gx: %.3g us per state against %s %.3g us, '
+                '%s' % (ratio, ours['per_state_us'], reference['method'],
+                        reference['per_state_us'], robot.answers_text(ours))})
+            continue
+        found.append({'target': what, 'measured': measured, 'passed': None})
+    path, alone = (by_method.get(robot_model.TRAJECTORY, {}),
+                   by_method.get(robot_model.WAYPOINTS, {}))
+    if 'per_call_ms' in path and 'per_call_ms' in alone and path['waypoints'] == \
+            PANDA_WAYPOINTS:
+        found.append({'target': trajectory, 'passed': bool(
+            path['vs_waypoints'] <= PANDA_TRAJECTORY_MAX_RATIO), 'measured': (
+            '%.3gx: %.3g ms against %.3g ms' % (path['vs_waypoints'], path['per_call_ms'],
+                                                alone['per_call_ms']))})
+    else:
+        found.append({'target': trajectory, 'passed': None, 'measured': 'not measured: %s' % (
+            path.get('skipped') or path.get('error') or by_method.get(
+                robot_model.OURS_JOINTS, {}).get('skipped') or 'not run')})
     return found
 
 
@@ -417,6 +480,8 @@ def markdown(results, plot_note):
                       results['static_moves']), '']
     if 'robot' in results:
         out += _robot_markdown(results['robot'], settings)
+    if 'robot_model' in results:
+        out += _robot_model_markdown(results['robot_model'], settings)
     return '\n'.join(out)
 
 
@@ -451,6 +516,61 @@ def _robot_markdown(rows, settings):
         'configuration whose answers agree with ours.', ''] + [
         '- %s%s: %s' % (row['method'], ' (MuJoCo reference)' if row.get('mujoco_reference')
                         else '', row['setup']) for row in rows if 'setup' in row] + ['']
+
+
+def _robot_model_markdown(rows, settings):
+    """Return the robot_model section's lines: the Panda from its URDF, ours and its peers."""
+    states = [row for row in rows if row.get('kind', 'state') == 'state']
+    paths = [row for row in rows if row.get('kind') == 'trajectory']
+    alarms = [row for row in rows if row.get('kind') == 'false_alarms']
+    panda = next((row for row in states if 'boxes' in row), {})
+    lines = [
+        '## Panda from its URDF: ours against MuJoCo and pinocchio + coal (µs per state)', '',
+        "The Panda of example-robot-data (URDF and SRDF, its meshes as boxes: {} boxes, {} "
+        'joints, the second finger a mimic) over a table under its base, a wall and a shelf '
+        'within reach; same-link, adjacent and SRDF pairs skipped ({} box pairs left, and '
+        'every robot-static pair). Random joint states '
+        'within the limits (seeded): {:,} per round one per call, and {:,} in one '
+        '`World.check_joints` call; {} rounds, the methods taking turns, each round on new '
+        'states. Every method is given q and places the boxes itself (forward kinematics '
+        "inside the clock). Same answers: every state's set of colliding pairs against "
+        "ours.".format(panda.get('boxes', '?'), panda.get('dof', '?'),
+                       panda.get('allowed_pairs', '?'), settings['panda_states'],
+                       settings['panda_batch_states'], settings['panda_rounds']), '',
+        table([('method', _get('method')), ('states per call', _get('states_per_call')),
+               ('states', _get('states')), ('µs per state', _get('per_state_us')),
+               ('mean µs', _get('mean_us')), ('× MuJoCo', _get('vs_mujoco')),
+               ('share of states colliding', _get('colliding_states')),
+               ('pairs per state', _get('pairs_per_state')),
+               ('same answers', _robot_answers)], states), '',
+        '× MuJoCo divides by the row marked MuJoCo reference below: the quickest MuJoCo '
+        'configuration whose answers agree with ours.', ''] + [
+        '- %s%s: %s' % (row['method'], ' (MuJoCo reference)' if row.get('mujoco_reference')
+                        else '', row['setup']) for row in states if 'setup' in row]
+    for row in states:
+        if 'placement_error' in row:
+            lines.append("- pinocchio's box placements against our forward kinematics, 20 "
+                         'random states: largest difference %.2g (m, and rotation matrix '
+                         'entries)' % row['placement_error'])
+    lines += ['', 'The trajectory: a smooth path of {} waypoints (two sines per joint, the '
+              'first of random paths whose {} states a segment are all free), '
+              '`World.check_trajectory(waypoints)` (waypoints exactly, segments '
+              'conservatively) against `World.check_joints(waypoints)` alone, {} calls each '
+              'a round in the same rounds. False alarms: on random short segments (each joint '
+              'moved by up to {:g} rad, a finger by up to {:g} m), the (segment, pair) '
+              'reports of a two-waypoint `check_trajectory` that a referee checking {} states '
+              'of the segment finds never colliding.'.format(
+                  robot_model.TRAJECTORY_WAYPOINTS, robot_model.SAMPLES_PER_SEGMENT,
+                  robot_model.TRAJECTORY_REPEATS, robot_model.SHORT_SEGMENT_RAD,
+                  robot_model.SHORT_SEGMENT_M, robot_model.REFEREE_SAMPLES), '',
+              table([('check', _get('method')), ('waypoints', _get('waypoints')),
+                     ('calls', _get('calls')), ('median ms per call', _get('per_call_ms')),
+                     ('mean ms', _get('mean_ms')),
+                     ('× the waypoints alone', _get('vs_waypoints')),
+                     ('pairs reported', _get('reported_pairs'))], paths), '']
+    lines += ['- %s' % robot_model.false_alarm_text(row) for row in alarms
+              if 'reports' in row]
+    return lines + ['']
 
 
 # --- plot --------------------------------------------------------------------------------

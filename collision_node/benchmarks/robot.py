@@ -162,14 +162,18 @@ def exact_distance(poses, key):
                            pose_b[:3], rotation(pose_b[3:]), half_b).distance
 
 
-def compare(states, ours, theirs):
+def compare(states, ours, theirs, distance=None, margin=None):
     """Compare a method's pair sets with ours, state by state.
 
-    Returns the counts: states compared and differing, pairs only ours / only theirs report,
-    differing pairs that collide (exact distance <= 0), the largest distance of a differing
-    pair from its margin's boundary (m; None when none differ) and whether every difference
-    lies on the boundary (within BOUNDARY_M).
+    ``distance(state, key)`` is a pair's exact signed distance in a state and ``margin(key)``
+    its margin (default: the arm's, ``states`` its link poses). Returns the counts: states
+    compared and differing, pairs only ours / only theirs report, differing pairs that
+    collide (exact distance <= 0), the largest distance of a differing pair from its
+    margin's boundary (m; None when none differ) and whether every difference lies on the
+    boundary (within BOUNDARY_M).
     """
+    distance = distance or exact_distance
+    margin = margin or pair_margin
     differing = only_ours = only_theirs = colliding = 0
     gaps = []
     for poses, mine, other in zip(states, ours, theirs):
@@ -179,9 +183,9 @@ def compare(states, ours, theirs):
         only_ours += len(mine - other)
         only_theirs += len(other - mine)
         for key in mine ^ other:
-            distance = exact_distance(poses, key)
-            gaps.append(abs(distance - pair_margin(key)))
-            colliding += distance <= 0.0
+            exact = distance(poses, key)
+            gaps.append(abs(exact - margin(key)))
+            colliding += exact <= 0.0
     worst = float(max(gaps)) if gaps else None
     return {'compared_states': len(ours), 'states_differing': differing,
             'only_ours': only_ours, 'only_peer': only_theirs, 'worst_gap_m': worst,
@@ -209,9 +213,10 @@ class Method:
     """One way to answer the arm's question; one state per call unless ``batch``.
 
     ``inputs(states)`` turns (S, 7, 7) poses into the method's own input (not timed);
-    ``call(inputs, k)`` answers state k (timed); ``answer(raw)`` turns what it returned into
-    a set of contact keys (not timed). A batch method's ``call(inputs)`` answers every state
-    and ``answers(raw, count)`` returns their sets.
+    ``call(inputs, k)`` answers state k (timed); ``collect(raw)``, right after the clock
+    stops, reads what a library keeps only until its next call; ``answer(raw)`` turns what
+    it returned into a set of contact keys (not timed). A batch method's ``call(inputs)``
+    answers every state and ``answers(raw, count)`` returns their sets.
     """
 
     batch = False
@@ -220,6 +225,9 @@ class Method:
 
     def inputs(self, states):
         return states
+
+    def collect(self, raw):
+        return raw
 
     def answer(self, raw):
         return raw
@@ -452,13 +460,13 @@ def methods():
 
 def _time_states(method, inputs, count):
     """Call ``method`` on states 0..count-1 of ``inputs``; return (seconds per call, raws)."""
-    call, clock = method.call, time.perf_counter
+    call, collect, clock = method.call, method.collect, time.perf_counter
     seconds, raws = np.empty(count), [None] * count
     for k in range(count):
         before = clock()
         raw = call(inputs, k)
         seconds[k] = clock() - before
-        raws[k] = raw
+        raws[k] = collect(raw)
     return seconds, raws
 
 
