@@ -5,6 +5,7 @@ signature. The node calls :func:`warm_up` before it subscribes, the benchmarks b
 time: it runs every broad phase and every mode of the World (still bodies, margins, filters,
 continuous checks, moving colliders, threads) on a small random scene of its own.
 """
+import contextlib
 import itertools
 
 import numpy as np
@@ -169,3 +170,9 @@ def warm_up():
     robot.box_poses(np.zeros(robot.dof))
     robot.box_poses(np.zeros((2, robot.dof)))
     robot.link_poses(np.zeros(robot.dof))
+    # The robot in a World: its box poses, and a trajectory's segment check.
+    with contextlib.closing(World()) as world:
+        world.set_static(np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]]), np.ones((1, 3)))
+        world.set_robot(robot)
+        world.robot_poses(np.zeros(robot.dof))
+        world.check_trajectory(np.linspace(0.0, 0.1, 2 * robot.dof).reshape(2, robot.dof))
