@@ -28,6 +28,7 @@ from collision_node.pipeline.warm_up import WARM_UP_ROBOT
 from collision_node.ros.joints import JointInputError, JointValues
 from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.messages import CLOUD_DTYPE, cloud_to_contacts, STATE_CLOUD_DTYPE
+from collision_node.ros.params import ParameterError
 
 DOMAIN_ID = random.Random(os.getpid() + 36).randint(1, 200)
 PREFIX = os.path.join(sysconfig.get_paths()['purelib'], 'cmeel.prefix')
@@ -298,6 +299,15 @@ def test_pose_arrays_are_refused_while_a_robot_is_loaded(robot_room):
     requests.publish(PoseArray())
     rejection(robot_room, 'check_states: refused while a robot model is loaded')
     assert not robot_room.clouds
+
+
+def test_a_bad_model_parameter_stops_the_start_naming_it(context):
+    bad = URDF.replace('link5.stl', 'link55.stl')
+    with pytest.raises(ParameterError, match="parameter 'robot_description': link 'panda_link5': "
+                                             "mesh '.*link55.stl' not found"):
+        Harness(context, **room_overrides(**{
+            'robot_description': bad,
+            'robot_description_package_paths': [os.path.join(PREFIX, 'share')]}))
 
 
 def test_models_from_topics_before_and_after_the_start(context, panda, monkeypatch):
