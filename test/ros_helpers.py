@@ -86,14 +86,16 @@ class Harness:
     """A CollisionNode and a test node that talks to it, spun by the test.
 
     ``input_depth`` deepens the node's input queue (its ``qos_overrides`` parameter) and the
-    tester's publisher alike, so that a burst of that many inputs reaches the node whole. With
+    tester's publisher alike, so that a burst of that many inputs reaches the node whole.
+    ``namespace`` (default: a new one per harness) lets a test publish before the node exists. With
     ``autostart=False`` among the overrides the node waits unconfigured: ``lifecycle`` moves it.
     """
 
     counter = itertools.count()
 
-    def __init__(self, context, input_depth=None, **overrides):
-        self.namespace = 'case%d' % next(self.counter)  # no stray message from an earlier case
+    def __init__(self, context, input_depth=None, namespace=None, **overrides):
+        # A namespace of its own: no stray message from an earlier case.
+        self.namespace = namespace or 'case%d' % next(self.counter)
         input_qos = INPUT
         if input_depth is not None:
             overrides['qos_overrides./%s/dynamic_poses.subscription.depth'

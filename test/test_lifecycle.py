@@ -210,12 +210,14 @@ def test_every_input_is_gated_and_every_answer_is_a_lifecycle_publisher(harness)
     node = harness().node
     subscriptions = list(node.subscriptions)
     assert sorted(s.topic_name.rsplit('/', 1)[1] for s in subscriptions) == [
-        'check_states', 'dynamic_poses', 'static_poses']
+        'check_states', 'check_trajectory', 'dynamic_poses', 'joint_states', 'robot_description',
+        'robot_description_semantic', 'static_poses']
     assert all(getattr(s.callback, 'lifecycle_gated', False) for s in subscriptions)
     managed = {p.topic_name.rsplit('/', 1)[1]: isinstance(p, LifecyclePublisher)
                for p in node.publishers}
     assert managed == {'collisions': True, 'markers': True, 'state_collisions': True,
-                       'diagnostics': False, 'parameter_events': False}
+                       'trajectory_collisions': True, 'diagnostics': False,
+                       'parameter_events': False}
 
 
 def test_an_input_waiting_for_the_timer_is_ignored_at_deactivate(harness):

@@ -177,4 +177,5 @@ def warm_up():
         world.set_static(scene.static_poses, scene.static_half_extents, margins=own)
         world.set_robot(arm)
         world.check_joints(np.zeros(arm.dof))
-        world.check_trajectory(np.zeros((2, arm.dof)))
+        world.step(world.robot_poses(np.zeros(arm.dof)), arm.half_extents)  # joint_states
+        world.check_trajectory(np.linspace(0.0, 0.1, 2 * arm.dof).reshape(2, arm.dof))

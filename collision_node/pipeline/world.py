@@ -438,6 +438,16 @@ class World:
                                           1e3 * (time.perf_counter() - start), len(states),
                                           False))
 
+    def robot_poses(self, q):
+        """Return the robot's box poses at joint values q (dof,) or (K, dof): (K, B, 7).
+
+        In the World's frame (the base pose applied): ``step(robot_poses(q)[0],
+        robot.half_extents)`` checks one state as a tick, with what a step keeps between
+        ticks (an unchanged state's answer reused, still boxes not tested again). Raises
+        ValueError as :meth:`check_joints`.
+        """
+        return self._robot_bodies().poses(q)
+
     def check_trajectory(self, waypoints, resolution=DEFAULT_RESOLUTION):
         """Check a joint-space path: its W waypoints exactly, the segments between them safely.
 

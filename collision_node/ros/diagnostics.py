@@ -69,6 +69,12 @@ class Monitor:
         self._state_requests = 0      # this period: check_states requests answered
         self._states = 0              # this period: states they held
         self._state_request_ms = ''   # the last one's time
+        self._robot = ''              # 'N joints, B boxes' of the robot model, '' without one
+        self._box_links = ''          # index:link of every box, made once per model
+        self._robot_refused = ''      # why the last robot model was refused
+        self._missing_joints = []     # joints without a joint_states value yet
+        self._trajectory_requests = 0     # this period: check_trajectory requests answered
+        self._trajectory_request_ms = ''  # the last one's time
 
     def lifecycle(self, now_s, state, problem=''):
         """Record the node's lifecycle state at ``now_s``; ``problem``: why, when it is a fault.
@@ -86,6 +92,25 @@ class Monitor:
         self._state_requests += 1
         self._states += states
         self._state_request_ms = ms
+
+    def robot(self, joint_names, box_links):
+        """Record a new robot model: its joints and each box's link (body i is box i)."""
+        self._robot = '%d joints, %d boxes' % (len(joint_names), len(box_links))
+        self._box_links = ' '.join('%d:%s' % item for item in enumerate(box_links))
+
+    def robot_refused(self, reason):
+        """Record why a robot model was refused (the one before stays), as a rejection too."""
+        self._robot_refused = reason
+        self.rejected(reason)
+
+    def missing_joints(self, names):
+        """Record the joints that have no joint_states value yet (WARN while there are any)."""
+        self._missing_joints = list(names)
+
+    def trajectory_checked(self, ms):
+        """Count a check_trajectory request answered in ``ms``."""
+        self._trajectory_requests += 1
+        self._trajectory_request_ms = ms
 
     def ignored(self, count=1):
         """Count inputs that came while the node was not active: never checked, never answered."""
@@ -184,6 +209,12 @@ class Monitor:
                    ('states_checked', str(self._states)),
                    ('state_request_ms', self._state_request_ms if self._state_request_ms == ''
                     else _ms(self._state_request_ms)),
+                   ('trajectory_requests', str(self._trajectory_requests)),
+                   ('trajectory_request_ms', self._trajectory_request_ms
+                    if self._trajectory_request_ms == '' else _ms(self._trajectory_request_ms)),
+                   ('robot', self._robot), ('box_links', self._box_links),
+                   ('missing_joints', ' '.join(self._missing_joints)),
+                   ('robot_refused', self._robot_refused),
                    ('lifecycle_state', self._state),
                    ('ignored_inputs', str(self._ignored_total)),
                    ('dropped_inputs', str(self._dropped_total)),
@@ -203,8 +234,12 @@ class Monitor:
             level, message = ERROR, 'no valid input for %.3g s' % silent_s
             if self._rejected_since_valid:  # inputs came, all bad: say why they were refused
                 message += '; ' + self._rejections(self._rejected_since_valid)
+            if self._missing_joints:
+                message += '; ' + self._waiting_for_joints()
         elif self._rejected:
             level, message = WARN, self._rejections(self._rejected)
+        elif self._missing_joints:
+            level, message = WARN, self._waiting_for_joints()
         elif self._ticks and input_period and slowest_ms > 1e3 * input_period:
             level, message = WARN, 'a tick took %.3g ms, longer than the input period %.3g ms' \
                 % (slowest_ms, 1e3 * input_period)
@@ -213,9 +248,12 @@ class Monitor:
 
         self._period_start = now_s
         self._ticks = self._received = self._dropped = self._rejected = self._ignored = 0
-        self._state_requests = self._states = 0
+        self._state_requests = self._states = self._trajectory_requests = 0
         self._period_max = (0.0,) * len(STAGES)
         return level, message, values
+
+    def _waiting_for_joints(self):
+        return 'no answer until joint_states gives %s' % ', '.join(self._missing_joints)
 
     def _rejections(self, count):
         return '%d inputs rejected, last: %s' % (count, self._last_rejection)

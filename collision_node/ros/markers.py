@@ -117,6 +117,22 @@ class MarkerWriter:
         self.static = MarkerKind(frame_id, 'static', Marker.CUBE)
         self.dynamic = MarkerKind(frame_id, 'dynamic', Marker.CUBE)
         self.normals = MarkerKind(frame_id, 'normals', Marker.ARROW)
+        self._frame_id = frame_id
+        self._body_groups = None  # [(MarkerKind, body indices)] of named bodies, or None
+
+    def name_bodies(self, names):
+        """Put dynamic body i's cube in namespace ``dynamic/<names[i]>`` (None: ``dynamic``).
+
+        A robot's boxes are named by their links, so RViz lists (and hides) each link's
+        boxes by name. A kind per name is made here, once per set of names.
+        """
+        if names is None:
+            self._body_groups = None
+            return
+        names = np.asarray(names, dtype=object)
+        self._body_groups = [
+            (MarkerKind(self._frame_id, 'dynamic/' + name, Marker.CUBE),
+             np.flatnonzero(names == name)) for name in dict.fromkeys(names)]
 
     def serialize(self, sec, nanosec, static_poses, static_half_extents, static_ids,
                   poses, half_extents, contacts):
@@ -151,12 +167,20 @@ class MarkerWriter:
         head[HEAD_STAMP_OFFSET:HEAD_STAMP_OFFSET + 8] = np.frombuffer(
             struct.pack('<iI', sec, nanosec), np.uint8)
         parts = [head]
+        groups = self._body_groups
+        if groups is None or sum(len(bodies) for _, bodies in groups) != len(poses):
+            bodies = [(self.dynamic, np.arange(len(poses)), poses, 2.0 * half_extents,
+                       body_colors)]
+        else:  # named bodies: a block per name
+            sizes = np.broadcast_to(2.0 * np.asarray(half_extents), (len(poses), 3))
+            bodies = [(kind, rows, poses[rows], sizes[rows], body_colors[rows])
+                      for kind, rows in groups]
         for kind, ids, group_poses, scales, colors in (
-                (self.static, static_ids, static_poses, 2.0 * static_half_extents,
-                 STATIC_COLOR),
-                (self.dynamic, np.arange(len(poses)), poses, 2.0 * half_extents, body_colors),
-                (self.normals, np.arange(len(contacts)), arrows, arrow_scales,
-                 np.where(near[:, None], GAP_COLOR, NORMAL_COLOR))):
+                [(self.static, static_ids, static_poses, 2.0 * static_half_extents,
+                  STATIC_COLOR)]
+                + bodies
+                + [(self.normals, np.arange(len(contacts)), arrows, arrow_scales,
+                    np.where(near[:, None], GAP_COLOR, NORMAL_COLOR))]):
             block = kind.block(len(ids))
             block['sec'], block['nanosec'], block['id'] = sec, nanosec, ids
             block['pose'], block['scale'], block['color'] = group_poses, scales, colors

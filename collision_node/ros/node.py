@@ -62,19 +62,22 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.task import Future
-from sensor_msgs.msg import PointCloud2
-from std_msgs.msg import Header
+from sensor_msgs.msg import JointState, PointCloud2
+from std_msgs.msg import Header, String
+from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.contacts import CONTACT_DTYPE
 from collision_node.pipeline.jit_progress import compile_progress
+from collision_node.pipeline.robot import Robot
 from collision_node.pipeline.small_scene import STATE_CONTACT_DTYPE
 from collision_node.pipeline.static_scene import InvalidCollider
 from collision_node.pipeline.warm_up import warm_up
 from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import CdrError, parse_pose_array
+from collision_node.ros.joints import JointInputError, JointValues
 from collision_node.ros.lifetime import InitError, RosProgram
 from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.memory import keep_heap_memory
@@ -94,6 +97,17 @@ OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 REQUEST_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
+# robot_description and robot_description_semantic as robot_state_publisher and move_group
+# publish them: the last model is kept for subscribers that come later.
+MODEL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# joint_states: a best-effort subscription matches reliable and best-effort publishers alike;
+# 10 deep, so that an arm's and a gripper's messages that arrive together are both taken.
+JOINT_STATES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                              reliability=ReliabilityPolicy.BEST_EFFORT,
+                              durability=DurabilityPolicy.VOLATILE)
+MODEL_TOPICS = ('robot_description', 'robot_description_semantic')
 # No endpoint watches QoS events: rclpy gives every publisher and subscription two handlers by
 # default (incompatible QoS, incompatible type), only to log a warning, and its executor walks
 # every handler on every wake-up: ~4.5 µs each, ~60 µs a wake-up for the node's 14 (an idle
@@ -147,6 +161,11 @@ class CollisionNode(LifecycleNode):
         self._inputs, self._outputs = [], []
         self._tick_timer = None
         self._scene_version = 0  # counts the accepted changes of the colliders (diagnostics)
+        # The robot (doc/robot.md, "Through ROS"): its model while one is loaded, the XML it was
+        # built from (topic name: text), and its joint values from joint_states.
+        self._robot = None
+        self._model_texts = dict.fromkeys(MODEL_TOPICS, '')
+        self._joints = None
         self.finalized = Future()  # done once the shutdown transition has run
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
@@ -219,6 +238,13 @@ class CollisionNode(LifecycleNode):
         _add_colliders(world, config.colliders)
         world.set_filters(*config.filters())
         self._scene_version = 0
+        self._robot, self._joints = None, None
+        self._model_texts = {topic: getattr(config, topic) for topic in MODEL_TOPICS}
+        if config.robot_description:  # a model from the parameters: built now, or no start
+            try:
+                robot = self._build_robot(self._model_texts)
+            except Exception as error:  # noqa: B902 (as _on_model)
+                raise params.ParameterError('robot_description', str(error)) from None
 
         start = time.perf_counter()
         with compile_progress(self.get_logger().info):
@@ -238,6 +264,10 @@ class CollisionNode(LifecycleNode):
                                                      REQUEST_QOS)
         self._states_writer = CloudWriter(STATE_CONTACT_DTYPE)
         self._marker_writer = MarkerWriter(config.frame_id)
+        if config.robot_description:
+            self._load_robot(robot)
+        self._trajectory_publisher = self._create_output(PointCloud2, 'trajectory_collisions',
+                                                         REQUEST_QOS)
         self._next_markers_s = -math.inf  # monotonic s
         self._last_sequence = None
         self._pending = None  # newest unchecked input, in timer mode
@@ -252,6 +282,17 @@ class CollisionNode(LifecycleNode):
                                                        self._on_static_poses, scene=True)
         self._states_subscription = self._create_input(PoseArray, 'check_states',
                                                        self._on_check_states, qos=REQUEST_QOS)
+        # The robot: a model topic only when its parameter is empty; models and joint values
+        # are kept while inactive too (scene inputs), only answers wait for the activate.
+        for topic, callback in zip(MODEL_TOPICS, (self._on_robot_description,
+                                                  self._on_robot_description_semantic)):
+            if not getattr(config, topic):
+                self._create_input(String, topic, callback, scene=True, qos=MODEL_QOS,
+                                   raw=False)
+        self._create_input(JointState, 'joint_states', self._on_joint_states,
+                           self._keep_joint_states, qos=JOINT_STATES_QOS, raw=False)
+        self._create_input(JointTrajectory, 'check_trajectory', self._on_check_trajectory,
+                           qos=REQUEST_QOS, raw=False)
         self.get_logger().info(
             '%d static colliders (%d enabled), broad phase %s, %s, %d thread%s' % (
                 len(config.colliders), self._world.static_count, config.broad_phase,
@@ -324,6 +365,7 @@ class CollisionNode(LifecycleNode):
                 self._tick_timer = None
             with self._world_lock:
                 world, self._world, self._config = self._world, None, None
+                self._robot, self._joints = None, None
             if world is not None:
                 world.close()
 
@@ -348,20 +390,21 @@ class CollisionNode(LifecycleNode):
     # Inputs.
 
     def _create_input(self, message_type, topic, callback, ignore=None, scene=False,
-                      qos=INPUT_QOS):
+                      qos=INPUT_QOS, raw=True):
         """Subscribe ``callback`` to an input topic, behind the lifecycle gate (at configure).
 
         Every input is made here: raw CDR bytes, the input QoS with its qos_overrides
         parameters, and the callback run by :meth:`_gated`, which calls ``ignore`` (the same
         arguments; by default: count one ignored input) for an input it turns away. ``scene``:
         the input changes the scene rather than asking for an answer (static_poses): it is
-        applied while inactive too.
+        applied while inactive too. ``raw=False`` for the small messages of the robot (rclpy
+        deserialises them).
         """
         # A copy: rclpy writes the qos_overrides into the profile it is given, and the next
         # node of this process would start from them.
         subscription = self.create_subscription(
             message_type, topic, self._gated(callback, ignore, scene), copy.copy(qos),
-            raw=True, qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            raw=raw, qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             event_callbacks=NO_SUBSCRIPTION_EVENTS)
         self._inputs.append(subscription)  # cleanup destroys it
         return subscription
@@ -432,6 +475,9 @@ class CollisionNode(LifecycleNode):
         config = self._config
         start = time.perf_counter()
         try:
+            if self._robot is not None:
+                raise InputError('dynamic_poses: refused while a robot model is loaded: its '
+                                 'boxes are the dynamic bodies (publish joint_states)')
             message = parse_pose_array(buffer)
             self._check_input(message, config)
             checked = time.perf_counter()
@@ -452,15 +498,20 @@ class CollisionNode(LifecycleNode):
             self._reject('dynamic poses the World cannot check (%s: %s)'
                          % (type(error).__name__, error))
             return
-        stepped = time.perf_counter()
+        self._publish_tick(start, checked, result, message.sec, message.nanosec, message.poses,
+                           config.dynamic_half_extents)
 
-        cloud = self._cloud_writer.serialize(result.contacts, message.sec, message.nanosec,
-                                             config.frame_id)
+    def _publish_tick(self, start, checked, result, sec, nanosec, poses, half_extents):
+        """Publish a step's answer and markers, and record the tick (perf_counter times)."""
+        stepped = time.perf_counter()
+        cloud = self._cloud_writer.serialize(result.contacts, sec, nanosec,
+                                             self._config.frame_id)
         output_ms = 1e3 * (time.perf_counter() - stepped)
         self._collisions_publisher.publish(cloud)
         now = time.monotonic()
         if now >= self._next_markers_s:
-            output_ms += 1e3 * self._publish_markers(message, result, now)
+            output_ms += 1e3 * self._publish_markers(sec, nanosec, poses, half_extents,
+                                                     result, now)
         done = time.perf_counter()
 
         # Not result.stats: a small scene's step builds them only when read (by the report).
@@ -471,7 +522,7 @@ class CollisionNode(LifecycleNode):
         self._monitor.tick(now, (1e3 * (checked - start), *phase_ms, output_ms, publish_ms,
                                  1e3 * (done - start)), result)
 
-    def _publish_markers(self, message, result, now):
+    def _publish_markers(self, sec, nanosec, poses, half_extents, result, now):
         """Publish the markers if someone subscribes; return the seconds spent writing them.
 
         Whether anyone subscribes is asked at most once a MARKER_PERIOD_S: it is a query of the
@@ -485,9 +536,8 @@ class CollisionNode(LifecycleNode):
             colliders = self._world.static_colliders
             on = colliders.enabled
             statics = colliders.poses[on], colliders.half_extents[on], colliders.ids[on]
-        markers = self._marker_writer.serialize(
-            message.sec, message.nanosec, *statics, message.poses,
-            self._config.dynamic_half_extents, result.contacts)
+        markers = self._marker_writer.serialize(sec, nanosec, *statics, poses, half_extents,
+                                                result.contacts)
         written = time.perf_counter() - start
         self._markers_publisher.publish(markers)
         cost = time.perf_counter() - start
@@ -520,6 +570,9 @@ class CollisionNode(LifecycleNode):
         config = self._config
         start = time.perf_counter()
         try:
+            if self._robot is not None:
+                raise InputError('refused while a robot model is loaded: its boxes are the '
+                                 'dynamic bodies (send joint-space paths to check_trajectory)')
             message = parse_pose_array(buffer)
             states = _states_of(message, config)
             with self._world_lock:
@@ -534,6 +587,130 @@ class CollisionNode(LifecycleNode):
         self._states_publisher.publish(self._states_writer.serialize(
             result.contacts, message.sec, message.nanosec, config.frame_id))
         self._monitor.states_checked(len(states), 1e3 * (time.perf_counter() - start))
+
+    # The robot (doc/robot.md, "Through ROS").
+
+    def _build_robot(self, texts):
+        """Return the Robot of the model ``texts`` (topic name: XML); raise the parser's error."""
+        if not texts['robot_description'].strip():
+            raise ValueError('the URDF is empty')
+        return Robot.from_urdf(texts['robot_description'],
+                               srdf=texts['robot_description_semantic'] or None,
+                               package_paths=self._config.robot_package_paths)
+
+    def _on_robot_description(self, message):
+        self._on_model('robot_description', message.data)
+
+    def _on_robot_description_semantic(self, message):
+        self._on_model('robot_description_semantic', message.data)
+
+    def _on_model(self, topic, text):
+        """Build the robot of a new URDF or SRDF and swap it in; a bad one leaves the old.
+
+        The newest URDF is built with the newest SRDF, each kept even when their robot is
+        refused: a new robot's URDF and SRDF come one after the other, and the first alone
+        may not fit the other's old text (an SRDF naming links of the old robot).
+        """
+        self._model_texts = texts = dict(self._model_texts, **{topic: text})
+        if topic != 'robot_description' and not texts['robot_description']:
+            return  # an SRDF before any URDF: kept for it
+        try:
+            # Outside the world lock (meshes are read from files): ticks go on meanwhile.
+            robot = self._build_robot(texts)
+        except Exception as error:  # noqa: B902 - XML, files, trimesh: no model stops the node
+            self._refuse_model('%s: %s' % (topic, error))
+            return
+        self._load_robot(robot)
+
+    def _load_robot(self, robot):
+        """Make ``robot`` the World's robot at once, its joints keeping the values they had."""
+        with self._world_lock:
+            try:
+                self._world.set_robot(robot, self._config.robot_base_pose)
+            except ValueError as error:
+                self._refuse_model('robot_description: %s' % error)
+                return False
+            self._robot = robot
+            self._joints = JointValues(robot.joint_names, self._joints)
+            missing = self._joints.missing
+        self._marker_writer.name_bodies(robot.box_links)
+        self._monitor.robot(robot.joint_names, robot.box_links)
+        self._monitor.missing_joints(missing)
+        self.get_logger().info('robot model: %d joints, %d boxes on %d links'
+                               % (robot.dof, len(robot.box_links), len(set(robot.box_links))))
+        return True
+
+    def _refuse_model(self, reason):
+        self._monitor.robot_refused(reason)
+        self.get_logger().warn('robot model refused, the previous one stays: %s' % reason)
+
+    def _on_joint_states(self, message):
+        """Take a joint_states message's values; once every joint has one, answer on collisions."""
+        start = time.perf_counter()
+        if not self._merge_joint_states(message):
+            return
+        self._monitor.received()
+        try:
+            with self._world_lock:
+                robot, joints = self._robot, self._joints
+                missing = joints.missing
+                if not missing:
+                    checked = time.perf_counter()
+                    poses = self._world.robot_poses(joints.q())[0]
+                    result = self._world.step(poses, robot.half_extents)
+        except ValueError as error:  # the World's filters sized for other bodies
+            self._reject('joint_states: %s' % error)
+            return
+        except (ArithmeticError, RuntimeError) as error:
+            self._reject('joint_states: a state the World cannot check (%s: %s)'
+                         % (type(error).__name__, error))
+            return
+        self._monitor.missing_joints(missing)
+        if missing:
+            self.get_logger().warn('no answer on collisions until joint_states gives %s'
+                                   % ', '.join(missing), throttle_duration_sec=LOG_THROTTLE_S)
+            return
+        stamp = message.header.stamp
+        self._publish_tick(start, checked, result, stamp.sec, stamp.nanosec, poses,
+                           robot.half_extents)
+
+    def _keep_joint_states(self, message):
+        """While not active: keep the joint values (answer nothing); count an ignored input."""
+        self._monitor.ignored()
+        self._merge_joint_states(message)
+
+    def _merge_joint_states(self, message):
+        """Merge a message into the joint values; False without a robot or when refused."""
+        if self._joints is None:  # no model yet: nothing to check against
+            return False
+        try:
+            self._joints.merge(message.name, message.position)
+        except JointInputError as error:
+            self._reject('joint_states: %s' % error)
+            return False
+        return True
+
+    def _on_check_trajectory(self, message):
+        """Answer a check_trajectory request on trajectory_collisions; refuse a bad one."""
+        start = time.perf_counter()
+        try:
+            with self._world_lock:
+                if self._robot is None:
+                    raise JointInputError('no robot model yet (robot_description)')
+                waypoints = self._joints.waypoints(
+                    list(message.joint_names), [point.positions for point in message.points])
+                result = self._world.check_trajectory(waypoints)
+        except ValueError as error:  # JointInputError too: it names the waypoint and joint
+            self._reject('check_trajectory: %s' % error)
+            return
+        except (ArithmeticError, RuntimeError) as error:
+            self._reject('check_trajectory: a path the World cannot check (%s: %s)'
+                         % (type(error).__name__, error))
+            return
+        stamp = message.header.stamp
+        self._trajectory_publisher.publish(self._states_writer.serialize(
+            result.contacts, stamp.sec, stamp.nanosec, self._config.frame_id))
+        self._monitor.trajectory_checked(1e3 * (time.perf_counter() - start))
 
     def _on_static_poses(self, buffer):
         """Move the static colliders from the next tick on; refuse an invalid message whole."""

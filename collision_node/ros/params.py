@@ -79,6 +79,15 @@ PARAMETERS = {
     'check_states.bodies': Spec(INTEGER, 0, 'bodies per state in a check_states request; 0: '
                                             'one per size in dynamic.half_extents (set it when '
                                             'one size is for all)'),
+    'robot_description': Spec(STRING, '', "URDF XML text of the robot; '': read the "
+                                          'robot_description topic'),
+    'robot_description_semantic': Spec(STRING, '', "SRDF XML text of the robot; '': read the "
+                                                   'robot_description_semantic topic'),
+    'robot_description_package_paths': Spec(
+        STRING_ARRAY, [], 'folders searched for pkg/path when a package://pkg/path mesh is not '
+                          'in the ament index'),
+    'robot_base_pose': Spec(DOUBLE_ARRAY, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+                            "x y z qx qy qz qw of the robot's root link in frame_id"),
     'threads': Spec(INTEGER, 1, "threads for the box writes, the grid's pair search, the SAT and "
                                 "the contacts: 1 keeps every tick on the executor's thread; 2+ "
                                 "pay from ~10,000 bodies"),
@@ -164,6 +173,10 @@ class Parameters(NamedTuple):
     input_timeout_s: float
     max_bodies: int
     state_bodies: int                 # bodies per check_states state (0: not known)
+    robot_description: str            # URDF text ('': from the topic)
+    robot_description_semantic: str   # SRDF text ('': from the topic)
+    robot_package_paths: list         # folders for package:// meshes
+    robot_base_pose: np.ndarray       # (7,)
     threads: int
     diagnostic_period_s: float
     next_static_id: int = 0  # the id of the next collider added at run time
@@ -220,6 +233,10 @@ def parse(values):
         input_timeout_s=_in_range('input_timeout_s', read['input_timeout_s'], 0.0, math.inf),
         max_bodies=_in_range('max_bodies', read['max_bodies'], 1, 2**32 - 1),
         state_bodies=_state_bodies(read['check_states.bodies'], dynamic_half_extents),
+        robot_description=read['robot_description'],
+        robot_description_semantic=read['robot_description_semantic'],
+        robot_package_paths=read['robot_description_package_paths'],
+        robot_base_pose=_pose('robot_base_pose', read['robot_base_pose']),
         threads=_in_range('threads', read['threads'], 1, MAX_THREADS),
         diagnostic_period_s=_positive('diagnostic_updater.period',
                                       read['diagnostic_updater.period']),
