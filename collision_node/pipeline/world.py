@@ -429,7 +429,7 @@ class World:
         count = bodies.count
         if count * (count - 1) // 2 + count * self._static.count > ONE_PASS_PAIRS:
             return self.check_states(bodies.poses(states), bodies.robot.half_extents)
-        model, base_pose = bodies.robot.model, bodies.base_pose
+        model, base_pose = bodies.model_fields, bodies.base_pose
         contacts, counters = self._states_in_one_pass(
             len(states), count,
             lambda *scene: check_joint_states(model, base_pose, states, *scene))
@@ -470,7 +470,7 @@ class World:
             arguments = self._robot_pairs(bodies)
             self._segment_pairs = (self._version, bodies, arguments)
         pairs, keys, margins, boxes = arguments
-        found = first_uncleared_pieces(bodies.robot.model, bodies.base_pose, waypoints, pairs,
+        found = first_uncleared_pieces(bodies.model_fields, bodies.base_pose, waypoints, pairs,
                                        margins, boxes, max(resolution, 1e-12))
         return Result(segment_contacts(self, bodies, waypoints, exact, found, keys))
 
