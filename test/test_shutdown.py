@@ -32,6 +32,11 @@ def test_node_signalled_at_random_moments_while_active_under_a_1khz_feed():
 
 
 @pytest.mark.slow
+def test_node_signalled_while_idle():
+    signalled_starts('node', 6, rate_hz=0.0)
+
+
+@pytest.mark.slow
 def test_node_signalled_while_starting():
     """From the first line: imports, kernels loaded, the autostart transitions."""
     signalled_starts('node', 8, when='start', max_delay_s=2.5)
