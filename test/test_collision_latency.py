@@ -31,7 +31,8 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
          str(path), '--domain-id', str(DOMAIN_ID)], cwd=REPO, capture_output=True, text=True,
         timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
-    for title in ('PoseArray in → collisions out', 'Arm:', 'Floor:', 'Tick:', 'Output:',
+    for title in ('PoseArray in → collisions out', 'Arm:', 'Joint states:', 'Floor:', 'Tick:',
+                  'Output:',
                   'Skip what a scene', 'Sphere', 'Gaps:'):
         assert title in done.stdout
     results = json.loads(path.read_text())
@@ -44,14 +45,16 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
     for stage in ('parse', 'broad', 'narrow', 'output', 'publish'):
         assert 0.0 <= row[stage + '_ms_median'] <= row['total_ms_max']
     # The arm scene: the node and the echo took turns on the same inputs.
-    arm = results['arm']
-    assert arm['sent'] > 0 and arm['sent'] % arm['turns'] == 0  # as many inputs in each turn
-    for who in ('node', 'echo'):
-        assert 0 < arm[who + '_answered'] <= arm['sent']
-        assert len(arm[who + '_turn_medians_ms']) == arm['turns']
-        assert 0 < arm[who + '_ms_median'] <= arm[who + '_ms_p99'] <= arm[who + '_ms_max']
-    assert arm['added_ms'] == arm['node_ms_median'] - arm['echo_ms_median']
-    assert 'Target: arm through ROS' in done.stdout
+    # And the Panda from its URDF, joint_states in: the same against its echo.
+    for key in ('arm', 'joint_states'):
+        arm = results[key]
+        assert arm['sent'] > 0 and arm['sent'] % arm['turns'] == 0  # as many in each turn
+        for who in ('node', 'echo'):
+            assert 0 < arm[who + '_answered'] <= arm['sent']
+            assert len(arm[who + '_turn_medians_ms']) == arm['turns']
+            assert 0 < arm[who + '_ms_median'] <= arm[who + '_ms_p99'] <= arm[who + '_ms_max']
+        assert arm['added_ms'] == arm['node_ms_median'] - arm['echo_ms_median']
+        assert 'Target: %s through ROS' % key in done.stdout
     # The node's callback in this process: the arm, then the uniform scene, every stage timed.
     assert [(r['scene'], r['bodies']) for r in results['tick']] == [
         ('arm (config/arm.yaml)', 7), ('uniform 64 (32 static)', 32)]

@@ -3,7 +3,7 @@
     collision_latency --quick --json latency.json     # under 2 minutes
     collision_latency --json latency.json             # 100 ... 100,000 bodies at 10, 100, 1,000 Hz
 
-Prints markdown tables; ``--json`` writes every number. Nine sections:
+Prints markdown tables; ``--json`` writes every number. Ten sections:
 
 * latency: the node runs as its own process (``python -m collision_node.ros.node``, the console
   script's code, default parameters but the scene's sizes); this process publishes pre-serialised
@@ -18,6 +18,9 @@ Prints markdown tables; ``--json`` writes every number. Nine sections:
   and an echo node (below) both up, answering in turns of a few seconds each, so that a slow
   moment of the machine hits both alike. The node's median latency minus the echo's is what
   the node adds at robot scale (target: at most ``ARM_TARGET_ADDED_MS``).
+* joint_states: the same against the echo for a robot from its URDF (example-robot-data's
+  Panda over three boxes): JointState messages in at 200 Hz, collisions out (target: at most
+  ``JOINT_STATES_TARGET_ADDED_MS`` over the echo).
 * floor: the same inputs answered by an echo node (:func:`run_echo`, its own process) that
   publishes the node's cloud for the scene at once: what ROS itself costs both ways (DDS,
   the two executors, taking and publishing the bytes). The node's latency minus this floor is
@@ -59,8 +62,9 @@ import numpy as np
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from rclpy.serialization import serialize_message
 from rclpy.task import Future
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import JointState, PointCloud2
 
 from collision_node.benchmarks.params_files import (scene_parameters, write_params_file,
                                                     write_scene_files)
@@ -74,7 +78,8 @@ from collision_node.ros.cdr import ENCAPSULATION_SIZE, serialize_pose_array
 from collision_node.ros.lifetime import RosProgram
 from collision_node.ros.memory import keep_heap_memory
 from collision_node.ros.messages import CloudWriter, contacts_to_cloud
-from collision_node.ros.node import CollisionNode, INPUT_QOS, OUTPUT_QOS  # the node's own QoS
+from collision_node.ros.node import (  # the node's own QoS
+    CollisionNode, INPUT_QOS, JOINT_STATES_QOS, OUTPUT_QOS)
 from collision_node.tools.demo import default_config
 from collision_node.tools.processes import stop_process
 from collision_node.tools.programs import child_command
@@ -95,10 +100,15 @@ FILE_SCENE_STATIC = 10000
 SKIP_TICKS = 30        # timed ticks per case of the skips section
 STAMP_OFFSET = ENCAPSULATION_SIZE  # the stamp (int32 sec, uint32 nanosec) follows the header
 NODE_STOP_TIMEOUT_S = 10.0
-SECTIONS = ('latency', 'arm', 'floor', 'tick', 'output', 'skips', 'sphere', 'gaps', 'startup')
+SECTIONS = ('latency', 'arm', 'joint_states', 'floor', 'tick', 'output', 'skips', 'sphere',
+            'gaps', 'startup')
 ARM_RATE_HZ = 200.0
 ARM_TARGET_ADDED_MS = 0.15  # the node's median latency over the echo's, at most (issue target)
 ECHO_NAMESPACE = 'echo'     # the arm section's echo answers /echo/dynamic_poses
+# The inputs the node answers on collisions: type and the node's own QoS for each.
+INPUTS = {'dynamic_poses': (PoseArray, INPUT_QOS),
+          'joint_states': (JointState, JOINT_STATES_QOS)}
+JOINT_STATES_TARGET_ADDED_MS = 0.2  # joint_states -> collisions over the echo, at most
 # The gaps section: what comes before each tick, (name, kind, seconds), timed in rounds that
 # take every case in turn, so that a slow minute of a shared machine hits them all alike.
 GAPS = (('nothing (back to back)', 'none', 0.0), ('sleep 1 ms', 'sleep', 0.001),
@@ -169,11 +179,13 @@ class Client:
     """This process's side: publishes inputs, records answers and diagnostics by stamp.
 
     Its topics are relative: in ``namespace`` it talks to a node there (the arm section's echo).
+    Inputs go to ``input_topic`` (:data:`INPUTS`): both begin with a header, so the stamp is
+    patched at the same offset.
     """
 
-    def __init__(self, context, namespace=''):
+    def __init__(self, context, namespace='', input_topic='dynamic_poses'):
         self.node = rclpy.create_node('collision_latency', namespace=namespace, context=context)
-        self.poses = self.node.create_publisher(PoseArray, 'dynamic_poses', INPUT_QOS)
+        self.poses = self.node.create_publisher(INPUTS[input_topic][0], input_topic, INPUT_QOS)
         self.node.create_subscription(PointCloud2, 'collisions', self._on_cloud, OUTPUT_QOS,
                                       raw=True)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
@@ -246,7 +258,7 @@ def start_node(params_path, domain_id, cache_dir=None, command=None):
     return process, log
 
 
-def run_echo(cloud_path, namespace=''):
+def run_echo(cloud_path, namespace='', input_topic='dynamic_poses'):
     """Answer every PoseArray at once with the cloud in ``cloud_path``, its stamp copied.
 
     The floor section's stand-in for the node: the same messages both ways through the same
@@ -264,7 +276,8 @@ def run_echo(cloud_path, namespace=''):
             cloud[STAMP_OFFSET:STAMP_OFFSET + 8] = data[STAMP_OFFSET:STAMP_OFFSET + 8]
             publisher.publish(bytes(cloud))
 
-        node.create_subscription(PoseArray, 'dynamic_poses', answer, INPUT_QOS, raw=True)
+        message_type, qos = INPUTS[input_topic]
+        node.create_subscription(message_type, input_topic, answer, qos, raw=True)
         return node
 
     with RosProgram() as program:  # as the node's main: the same executor, the same exit
@@ -380,25 +393,66 @@ def arm_section(plan, domain_id, progress):
     arm = scenes.arm()
     states = [arm.dynamic_poses(k / ARM_RATE_HZ) for k in range(FRAMES)]
     frames = [serialize_pose_array(0, 0, 'world', poses) for poses in states]
+    contacts = arm_world().step(states[0], arm.dynamic_half_extents).contacts
+    return _against_echo('arm', plan, domain_id, progress, default_config('arm'), frames,
+                         contacts, 'dynamic_poses', ARM_TARGET_ADDED_MS)
+
+
+def joint_states_section(plan, domain_id, progress):
+    """Time the Panda from its URDF at ARM_RATE_HZ, joint_states in, against the echo.
+
+    The node reads robot_description (the Panda of example-robot-data, its meshes as boxes)
+    and the robot_model section's table, wall and shelf; the inputs are JointState messages
+    along a smooth collision-free path.
+    """
+    from collision_node.benchmarks import robot_model  # example-robot-data: bench only
+    prefix, urdf_path, srdf_path = robot_model.panda_files()
+    panda = robot_model.load_panda()
+    world = robot_model.panda_world(panda)
+    path, _ = robot_model.free_path(panda, world, np.random.default_rng(0), FRAMES)
+    names = list(panda.joint_names)
+    frames = [bytes(serialize_message(JointState(name=names, position=q.tolist())))
+              for q in path]
+    contacts = world.step(world.robot_poses(path[0])[0], panda.half_extents).contacts
+    with open(urdf_path) as urdf, open(srdf_path) as srdf, \
+            tempfile.TemporaryDirectory() as directory:
+        params_path = os.path.join(directory, 'panda.yaml')
+        write_params_file(params_path, scene_parameters(
+            robot_model.STATIC_POSES, robot_model.STATIC_HALF_EXTENTS, [0.1, 0.1, 0.1],
+            robot_description=urdf.read(), robot_description_semantic=srdf.read(),
+            robot_description_package_paths=[os.path.join(prefix, 'share')]))
+        return _against_echo('joint_states', plan, domain_id, progress, params_path, frames,
+                             contacts, 'joint_states', JOINT_STATES_TARGET_ADDED_MS)
+
+
+def _against_echo(name, plan, domain_id, progress, params_path, frames, contacts, input_topic,
+                  target_added_ms):
+    """Time the node (on ``params_path``) and an echo on ``frames``, in turns at ARM_RATE_HZ.
+
+    The echo answers every input at once with the cloud of ``contacts``; both take turns of a
+    few seconds, so that a slow moment of the machine hits both alike. Returns the section's
+    row: each one's latencies, and the node's median over the echo's against the target.
+    """
     count = max(int(ARM_RATE_HZ * plan.arm_turn_s), 1)
     latencies = {'node': [], 'echo': []}
     turn_medians = {'node': [], 'echo': []}
     with ros_context(domain_id) as context, tempfile.TemporaryDirectory() as directory:
-        cloud_path = os.path.join(directory, 'arm_cloud.bin')
-        contacts = arm_world().step(states[0], arm.dynamic_half_extents).contacts
+        cloud_path = os.path.join(directory, 'cloud.bin')
         with open(cloud_path, 'wb') as out:
             out.write(bytes(CloudWriter().serialize(contacts, 0, 0, 'world')))
-        clients = {'node': Client(context), 'echo': Client(context, ECHO_NAMESPACE)}
+        clients = {'node': Client(context, input_topic=input_topic),
+                   'echo': Client(context, ECHO_NAMESPACE, input_topic)}
         started = time.perf_counter()
-        processes = {'node': start_node(default_config('arm'), domain_id),
+        processes = {'node': start_node(params_path, domain_id),
                      'echo': start_node(None, domain_id, command=[
                          sys.executable, '-m', 'collision_node.benchmarks.collision_latency',
-                         '--echo', cloud_path, '--echo-namespace', ECHO_NAMESPACE])}
+                         '--echo', cloud_path, '--echo-namespace', ECHO_NAMESPACE,
+                         '--echo-input', input_topic])}
         try:
             for who, client in clients.items():
                 ready_s = wait_ready(client, *processes[who], frames[0], 1, started)
                 settle(client, frames, 2)
-                progress('arm, %s: ready after %.2f s' % (who, ready_s))
+                progress('%s, %s: ready after %.2f s' % (name, who, ready_s))
             for turn in range(plan.arm_turns):
                 for who, client in clients.items():
                     measured, _, _ = publish_at_rate(client, frames, ARM_RATE_HZ, count,
@@ -407,15 +461,15 @@ def arm_section(plan, domain_id, progress):
                     turn_medians[who].append(float(np.median(measured)))
                     if processes[who][0].poll() is not None:
                         raise RuntimeError(node_failure(*processes[who]))
-            progress('arm: median ms per turn: node %s; echo %s'
-                     % (_fmt_list(turn_medians['node']), _fmt_list(turn_medians['echo'])))
+            progress('%s: median ms per turn: node %s; echo %s'
+                     % (name, _fmt_list(turn_medians['node']), _fmt_list(turn_medians['echo'])))
         finally:
             for client in clients.values():
                 client.close()
             for process, log in processes.values():
                 stop_node(process, log)
-    row = {'rate_hz': ARM_RATE_HZ, 'turns': plan.arm_turns, 'sent': plan.arm_turns * count,
-           'target_added_ms': ARM_TARGET_ADDED_MS}
+    row = {'name': name, 'rate_hz': ARM_RATE_HZ, 'turns': plan.arm_turns,
+           'sent': plan.arm_turns * count, 'target_added_ms': target_added_ms}
     for who in ('node', 'echo'):
         measured = np.concatenate(latencies[who])
         row[who + '_answered'] = len(measured)
@@ -426,10 +480,10 @@ def arm_section(plan, domain_id, progress):
 
 
 def arm_target_line(row):
-    """Return the arm section's target as one line, with its verdict."""
-    return ('arm through ROS at %g Hz, median latency <= echo + %g ms: node %.3f ms, echo %.3f '
+    """Return the arm or joint_states section's target as one line, with its verdict."""
+    return ('%s through ROS at %g Hz, median latency <= echo + %g ms: node %.3f ms, echo %.3f '
             'ms (%d/%d and %d/%d answered): +%.3f ms: %s' % (
-                row['rate_hz'], row['target_added_ms'], row['node_ms_median'],
+                row['name'], row['rate_hz'], row['target_added_ms'], row['node_ms_median'],
                 row['echo_ms_median'], row['node_answered'], row['sent'], row['echo_answered'],
                 row['sent'], row['added_ms'],
                 'PASS' if row['added_ms'] <= row['target_added_ms']
@@ -815,9 +869,13 @@ def markdown(results):
         ready = sorted({(r['bodies'], r['threads'], round(r['ready_s'], 2)) for r in rows})
         out += ['', 'Node ready (process start → first answer, warm cache): ' + ', '.join(
             '%d bodies (%d thread(s)) %.2f s' % item for item in ready), '']
-    arm = results.get('arm')
-    if arm:
-        out += ['## Arm: config/arm.yaml, the node against an echo node (ms)', '',
+    for key, title in (('arm', 'Arm: config/arm.yaml, the node against an echo node (ms)'),
+                       ('joint_states', 'Joint states: the Panda from its URDF, joint_states '
+                        'in, the node against an echo node (ms)')):
+        arm = results.get(key)
+        if not arm:
+            continue
+        out += ['## ' + title, '',
                 'The node and the echo answer in turns of %g s each, %d turns; medians per '
                 'turn: node %s, echo %s.' % (
                     results['plan']['arm_turn_s'], arm['turns'],
@@ -877,6 +935,8 @@ def parse_arguments(argv):
     parser.add_argument('--json', metavar='FILE', help='write every number here')
     parser.add_argument('--echo', metavar='CLOUD_FILE',
                         help="run as the floor section's echo node, answering with this cloud")
+    parser.add_argument('--echo-input', default='dynamic_poses', choices=sorted(INPUTS),
+                        help="the topic the echo answers (default: dynamic_poses)")
     parser.add_argument('--echo-namespace', default='', metavar='NS',
                         help="the echo node's namespace (the arm section's: %s)" % ECHO_NAMESPACE)
     parser.add_argument('--domain-id', type=int, default=100 + os.getpid() % 100,
@@ -899,7 +959,7 @@ def main(args=None):
     argv = sys.argv[1:] if args is None else args
     options, plan = parse_arguments(argv)
     if options.echo:
-        run_echo(options.echo, options.echo_namespace)
+        run_echo(options.echo, options.echo_namespace, options.echo_input)
         return 0
     keep_heap_memory()  # as the node does: receiving large clouds costs no page faults
     start = time.perf_counter()
@@ -920,6 +980,9 @@ def main(args=None):
     if 'arm' in sections:
         results['arm'] = arm_section(plan, options.domain_id, progress)
         progress(arm_target_line(results['arm']))
+    if 'joint_states' in sections:
+        results['joint_states'] = joint_states_section(plan, options.domain_id, progress)
+        progress(arm_target_line(results['joint_states']))
     if 'floor' in sections:
         results['floor'] = floor_section(plan, options.statics, options.domain_id, progress)
     if 'tick' in sections:
