@@ -18,6 +18,7 @@ setup(
         # pin and example-robot-data: the robot model's FK reference and its robots.
         'test': ['pytest', 'hypothesis', 'python-fcl', 'coal', 'pin', 'example-robot-data'],
         'bench': ['python-fcl', 'coal', 'mujoco', 'matplotlib'],  # robot section: coal, mujoco
+        'ray': ['ray'],  # collision_node.cluster and collision_label (doc/cluster.md)
     },
     zip_safe=False,
     maintainer='collision_node maintainers',
@@ -33,6 +34,7 @@ setup(
             'collision_bench = collision_node.benchmarks.collision_bench:main',
             'collision_latency = collision_node.benchmarks.collision_latency:main',
             'collision_soak = collision_node.benchmarks.collision_soak:main',
+            'collision_label = collision_node.tools.label:main',
         ],
     },
 )
