@@ -89,9 +89,9 @@ class Replica:
         contacts['state'] += first
         return version, contacts
 
-    def pid(self):
-        """Return the actor's process id (tests kill it)."""
-        return os.getpid()
+    def where(self):
+        """Return (Ray node id, process id) of this worker."""
+        return ray.get_runtime_context().get_node_id(), os.getpid()
 
 
 _RemoteReplica = ray.remote(Replica)
