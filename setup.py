@@ -15,8 +15,10 @@ setup(
     ],
     install_requires=['setuptools', 'numpy', 'numba', 'trimesh', 'pycollada'],
     extras_require={
-        # pin and example-robot-data: the robot model's FK reference and its robots.
-        'test': ['pytest', 'hypothesis', 'python-fcl', 'coal', 'pin', 'example-robot-data'],
+        # pin and example-robot-data: the robot model's FK reference and its robots; ray: the
+        # cluster's tests (test_cluster.py skips without it).
+        'test': ['pytest', 'hypothesis', 'python-fcl', 'coal', 'pin', 'example-robot-data',
+                 'ray'],
         'bench': ['python-fcl', 'coal', 'mujoco', 'matplotlib'],  # robot section: coal, mujoco
         'ray': ['ray'],  # collision_node.cluster and collision_label (doc/cluster.md)
     },

@@ -93,7 +93,8 @@ def test_check_joints_equals_one_world(local_ray, panda):  # noqa: F811
 def test_scene_changes_between_batches(local_ray):
     world, states, half_extents = box_world(margin=0.02)
     with ClusterChecker(world, workers=2, chunk=4) as checker:
-        verbs = [('move_static', [1, 4], world.static_colliders.poses[:2] + [0.2, 0.1, 0, 0, 0, 0, 0]),
+        moved = world.static_colliders.poses[:2] + [0.2, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0]
+        verbs = [('move_static', [1, 4], moved),
                  ('add_static', [100], [[0, 0, 0, 0, 0, 0, 1]], [[0.5, 0.5, 0.5]]),
                  ('move_static', [100], None, [[0.2, 0.3, 0.4]]),
                  ('remove_static', [7, 100]),
@@ -124,8 +125,8 @@ def test_a_worker_killed_mid_batch(local_ray):
     expected = world.check_states(states, half_extents).contacts
     with ClusterChecker(world, workers=2, chunk=1, in_flight=3) as checker:
         parts = []
-        for first, count, contacts in checker.stream_states([states[:6], states[6:]],
-                                                           half_extents):
+        blocks = [states[:6], states[6:]]
+        for first, count, contacts in checker.stream_states(blocks, half_extents):
             if not parts:
                 ray.kill(checker.workers[0])
             parts.append(contacts)
@@ -268,7 +269,7 @@ def test_collision_label_without_a_robot(local_ray, tmp_path):
 
 @pytest.fixture(scope='module')
 def two_nodes(local_ray):
-    """A head and a second node, two CPUs each (the local Ray is shut down for them)."""
+    """Start a head and a second node, two CPUs each (the local Ray is shut down first)."""
     from ray.cluster_utils import Cluster
     ray.shutdown()
     cluster = Cluster(initialize_head=True, head_node_args={'num_cpus': 2,

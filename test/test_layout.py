@@ -1,8 +1,9 @@
 """The import rule of the package's folders (doc/design.md, Code map).
 
-``pipeline`` imports nothing of ``collision_node`` outside itself and nothing of ROS; ``ros``
-imports ``pipeline`` and itself only; ``cluster`` (Ray, optional) imports ``pipeline`` and
-itself only, and is the one folder that imports Ray; ``benchmarks`` and ``tools`` sit on top. Every import is
+``pipeline`` imports nothing of ``collision_node`` outside itself and nothing of ROS;
+``ros`` imports ``pipeline`` and itself only; ``cluster`` (Ray, optional) imports
+``pipeline`` and itself only, and is the one folder that imports Ray; ``benchmarks`` and
+``tools`` sit on top. Every import is
 read from the source (function-level imports too), so a crossing fails here, not in a review.
 """
 import ast

@@ -227,7 +227,7 @@ class ClusterChecker:
     # ------------------------------------------------------------------ batches
 
     def check_states(self, states, half_extents):
-        """Return World.check_states(states, half_extents) of the replicated World.
+        """Answer K states of box poses as the replicated World, in one process, answers them.
 
         The same contacts in the same order (``state`` the index in the whole batch); its
         ``stats`` count states, chunks, reruns and replaced workers. Every state is checked
@@ -241,7 +241,7 @@ class ClusterChecker:
                            start)
 
     def check_joints(self, q):
-        """Return World.check_joints(q) of the replicated World (as :meth:`check_states`)."""
+        """Answer K joint states q as the replicated World's check_joints answers them."""
         start = time.perf_counter()
         states = self._checked_joints(q)
         return self._batch(self._stream(JOINTS, self._pieces(states), None, len(states)),

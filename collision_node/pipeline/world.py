@@ -1099,12 +1099,12 @@ class World:
 
     def describe(self):
         """Return a :class:`Description` of this World: settings, colliders, filters, robot."""
-        settings = dict(
-            broad_phase=self._phase_name, sphere_prefilter=self._sphere_prefilter,
-            octree_max_depth=self._settings.octree_max_depth,
-            octree_leaf_cooldown_ticks=self._settings.octree_leaf_cooldown_ticks,
-            threads=self._workers.threads, margin=self._margin, continuous=self._continuous,
-            continuous_tolerance=self._tolerance)
+        settings = {
+            'broad_phase': self._phase_name, 'sphere_prefilter': self._sphere_prefilter,
+            'octree_max_depth': self._settings.octree_max_depth,
+            'octree_leaf_cooldown_ticks': self._settings.octree_leaf_cooldown_ticks,
+            'threads': self._workers.threads, 'margin': self._margin,
+            'continuous': self._continuous, 'continuous_tolerance': self._tolerance}
         robot = self._robot
         return Description(settings, tuple(np.array(part) for part in self._scene.colliders),
                            self._filters_given, robot and robot.robot,

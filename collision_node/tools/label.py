@@ -119,13 +119,13 @@ def parse(argv):
     robot.add_argument('--q', help='.npy (K, dof) of configurations instead of drawing them')
     robot.add_argument('--poses', help='without a robot: .npy (K, D, 7) states of box poses')
     robot.add_argument('--half-extents', type=float, nargs=3, metavar='H',
-                       help='with --poses: every box\'s half extents (m)')
+                       help="with --poses: every box's half extents (m)")
     scene = parser.add_argument_group('scene')
-    scene.add_argument('--scene-file', help='.npz of static colliders, as the node\'s '
+    scene.add_argument('--scene-file', help=".npz of static colliders, as the node's "
                        'static_scene_file (doc/parameters.md)')
     scene.add_argument('--static', type=float, nargs=10, action='append', default=[],
                        metavar='V', help='a static box: x y z qx qy qz qw hx hy hz '
-                       '(repeatable; ids after the scene file\'s)')
+                       "(repeatable; ids after the scene file's)")
     scene.add_argument('--margin', type=float, default=0.0,
                        help='m: pairs this close are reported with their distance')
     scene.add_argument('--broad-phase', default='auto')
@@ -178,9 +178,8 @@ def robot_blocks(robot, args, size):
     limits[infinite] = np.where(limits < 0, -math.pi, math.pi)[infinite]
     rng = np.random.default_rng(args.seed)
     # One draw of (count, dof) in blocks: the same numbers as one call would give.
-    return args.count, (rng.uniform(limits[:, 0], limits[:, 1], (min(size, args.count - first),
-                                                                  robot.dof))
-                        for first in range(0, args.count, size))
+    shapes = ((min(size, args.count - first), robot.dof) for first in range(0, args.count, size))
+    return args.count, (rng.uniform(limits[:, 0], limits[:, 1], shape) for shape in shapes)
 
 
 def main(argv=None):
