@@ -219,6 +219,7 @@ def main(argv=None):
         else:
             answers = checker.stream_states(blocks, args.half_extents)
         offset = 0  # the first state of kept[0]
+        colliding = 0
         for first, length, contacts in answers:
             labels = labels_of(contacts, first, length, dtype)
             if robot is not None:
@@ -226,6 +227,7 @@ def main(argv=None):
                     offset += len(kept.pop(0))
                 labels['q'] = kept[0][first - offset:first - offset + length]
             output.write(labels)
+            colliding += int(labels['collides'].sum())
             progress.update(length)
     except (ValueError, ClusterError) as error:
         print('\ncollision_label: error: %s' % error, file=sys.stderr)
@@ -236,8 +238,8 @@ def main(argv=None):
     progress.finish()
     # ru_maxrss: KiB on Linux. This process only: Ray's own processes and the workers apart.
     print('%d labels (%d colliding) written to %s; peak memory of this process %.0f MB' % (
-        count, int(np.load(args.output, mmap_mode='r')['collides'].sum()) if complete else 0,
-        args.output, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
+        count, colliding, args.output,
+        resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
     return 0 if complete else 1
 
 
