@@ -213,6 +213,22 @@ def expected_labels(contacts, count):
     return labels
 
 
+def test_the_docs_snippet(local_ray, panda):  # noqa: F811
+    from test_readme import python_snippets
+    from test_robot_world import STATIC_HALF_EXTENTS, STATIC_POSES
+    snippet, = python_snippets(REPO / 'doc' / 'cluster.md')['The checker']
+    q = random_states(panda, 30, seed=2)
+    namespace = {'robot': panda, 'static_poses': np.array(STATIC_POSES),
+                 'static_half_extents': np.array(STATIC_HALF_EXTENTS), 'q': q,
+                 'states': panda.box_poses(q), 'half_extents': panda.half_extents,
+                 'ids': [0], 'poses': np.array(STATIC_POSES[:1]) + [0.1, 0, 0, 0, 0, 0, 0],
+                 'blocks_of_q': [q[:10], q[10:]]}
+    exec(snippet, namespace)
+    world = namespace['world']
+    assert np.array_equal(namespace['result'].contacts, world.check_joints(q).contacts)
+    assert len(namespace['contacts']) > 0  # the stream's last chunk, after the move
+
+
 def assert_labels_equal(found, expected):
     for name, kind in label.LABEL_FIELDS:
         assert np.array_equal(found[name], expected[name], equal_nan=kind is np.float64), name

@@ -21,10 +21,8 @@ import tempfile
 import time
 
 import numpy as np
-import ray
 
 from collision_node.benchmarks.robot import arm_states, arm_world
-from collision_node.cluster import ClusterChecker
 from collision_node.pipeline import scenes
 
 SPEED_UP_TARGET = 1.7      # 2 workers against 1
@@ -49,6 +47,7 @@ def median_time(call, repeats=REPEATS):
 
 
 def throughput(world, states, half_extents, workers):
+    from collision_node.cluster import ClusterChecker
     with ClusterChecker(world, workers=workers, chunk=CHUNK) as checker:
         checker.check_states(states[:4 * CHUNK], half_extents)  # actors started, kernels loaded
         start = time.perf_counter()
@@ -86,6 +85,8 @@ def main(argv=None):
     parser.add_argument('--states', type=int, default=1_000_000)
     parser.add_argument('--label-states', type=int, default=10_000_000)
     args = parser.parse_args(argv)
+    # Here, not at the top: importing this module (the package's import test) loads no Ray.
+    from collision_node.cluster import ClusterChecker, local_ray
     print('CPU: %s, %d cores' % (cpu_model(), os.cpu_count()))
     world = arm_world()
     half_extents = scenes.arm().dynamic_half_extents
@@ -93,8 +94,7 @@ def main(argv=None):
     states = np.tile(arm_states(CHUNK), (-(-args.states // CHUNK), 1, 1))[:args.states]
     expected_chunk = world.check_states(states[:CHUNK], half_extents).contacts
     in_process = median_time(lambda: world.check_states(states[:CHUNK], half_extents))
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
+    with local_ray(num_cpus=2):
         one, contacts_one = throughput(world, states, half_extents, 1)
         two, contacts_two = throughput(world, states, half_extents, 2)
         assert np.array_equal(contacts_one, contacts_two)
@@ -102,8 +102,6 @@ def main(argv=None):
             assert np.array_equal(checker.check_states(states[:CHUNK], half_extents).contacts,
                                   expected_chunk)
             remote = median_time(lambda: checker.check_states(states[:CHUNK], half_extents))
-    finally:
-        ray.shutdown()
     print('in process, one World, 1 thread: %.0f states/s (one chunk of %d: %.2f ms)'
           % (CHUNK / in_process, CHUNK, 1e3 * in_process))
     print('%d arm states, 1 worker: %.0f states/s; 2 workers: %.0f states/s'
@@ -119,8 +117,8 @@ def main(argv=None):
         peak, rate, line = label_memory(args.label_states)
         print('collision_label, %d Panda configurations: %s' % (args.label_states, line))
         print('collision_label peak memory (its process): %.0f MB at %.0f states/s overall '
-              '(target <= %.0f MB: %s)' % (peak, rate, MEMORY_TARGET_MB,
-                                          verdict(peak, MEMORY_TARGET_MB, True)))
+              '(target <= %.0f MB: %s)'
+              % (peak, rate, MEMORY_TARGET_MB, verdict(peak, MEMORY_TARGET_MB, True)))
 
 
 def cpu_model():

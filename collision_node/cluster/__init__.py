@@ -14,6 +14,6 @@ except ImportError as error:
                       "(pip install '.[ray]', or pip install ray)") from error
 
 from collision_node.cluster.checker import (  # noqa: E402 (after the check for Ray)
-    ClusterChecker, ClusterError, DEFAULT_CHUNK, DEFAULT_IN_FLIGHT)
+    ClusterChecker, ClusterError, DEFAULT_CHUNK, DEFAULT_IN_FLIGHT, local_ray)
 
-__all__ = ['ClusterChecker', 'ClusterError', 'DEFAULT_CHUNK', 'DEFAULT_IN_FLIGHT']
+__all__ = ['ClusterChecker', 'ClusterError', 'DEFAULT_CHUNK', 'DEFAULT_IN_FLIGHT', 'local_ray']

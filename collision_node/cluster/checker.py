@@ -19,6 +19,7 @@ restart budget lasts. When no worker is left, :class:`ClusterError` says how man
 answered: a partial answer is never returned as a whole one.
 """
 import collections
+import contextlib
 import os
 import time
 
@@ -95,6 +96,16 @@ class Replica:
 
 
 _RemoteReplica = ray.remote(Replica)
+
+
+@contextlib.contextmanager
+def local_ray(num_cpus=None):
+    """Run a local Ray of ``num_cpus`` CPUs (default: all) for the block; checkers join it."""
+    ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+    try:
+        yield
+    finally:
+        ray.shutdown()
 
 
 class ClusterChecker:
