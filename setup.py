@@ -15,10 +15,13 @@ setup(
     ],
     install_requires=['setuptools', 'numpy', 'numba', 'trimesh', 'pycollada'],
     extras_require={
-        # pin and example-robot-data: the robot model's FK reference and its robots.
-        'test': ['pytest', 'hypothesis', 'python-fcl', 'coal', 'pin', 'example-robot-data'],
+        # pin and example-robot-data: the robot model's FK reference and its robots; ray: the
+        # cluster's tests (test_cluster.py skips without it).
+        'test': ['pytest', 'hypothesis', 'python-fcl', 'coal', 'pin', 'example-robot-data',
+                 'ray'],
         # robot sections: coal, mujoco; robot_model: pin, example-robot-data (its Panda).
         'bench': ['python-fcl', 'coal', 'mujoco', 'matplotlib', 'pin', 'example-robot-data'],
+        'ray': ['ray'],  # collision_node.cluster and collision_label (doc/cluster.md)
     },
     zip_safe=False,
     maintainer='collision_node maintainers',
@@ -34,6 +37,7 @@ setup(
             'collision_bench = collision_node.benchmarks.collision_bench:main',
             'collision_latency = collision_node.benchmarks.collision_latency:main',
             'collision_soak = collision_node.benchmarks.collision_soak:main',
+            'collision_label = collision_node.tools.label:main',
         ],
     },
 )

@@ -17,7 +17,7 @@ ROSDEP_KEYS = {'numpy': 'python3-numpy', 'numba': 'python3-numba', 'pytest': 'py
                'hypothesis': 'python3-hypothesis', 'trimesh': 'python3-trimesh'}
 # Imports without a rosdep key, declared as pip extras in setup.py instead: pip names.
 PIP_NAMES = {'fcl': 'python-fcl', 'matplotlib': 'matplotlib', 'coal': 'coal',
-             'mujoco': 'mujoco', 'pinocchio': 'pin'}
+             'mujoco': 'mujoco', 'pinocchio': 'pin', 'ray': 'ray'}
 
 
 @pytest.fixture(scope='module')

@@ -17,8 +17,8 @@ from collision_node.pipeline import scenes
 REPO = pathlib.Path(__file__).resolve().parent.parent
 README = REPO / 'README.md'
 DOC = REPO / 'doc'
-# Every page with ```python blocks, and the headings they stand under: each has a test here or
-# in test_readme_ros.py.
+# Every page with ```python blocks, and the headings they stand under: each has a test here,
+# in test_readme_ros.py or (doc/cluster.md, with Ray) in test_cluster.py.
 SNIPPETS = {
     'README.md': ['Point it at your robot', 'Publishing poses from a script',
                   'The collisions cloud'],
@@ -28,6 +28,7 @@ SNIPPETS = {
                               'Adding, removing, resizing, enabling with parameters'],
     'doc/lifecycle.md': ['From code'],
     'doc/robot.md': ['The robot model', 'In the World: joint states and whole trajectories'],
+    'doc/cluster.md': ['The checker'],
 }
 
 

@@ -207,6 +207,13 @@ class Robot:
         return np.array([pose_from(rotations[link], translations[link])
                          for link in range(count)])
 
+    def checked_states(self, q):
+        """Return q (dof,) or (K, dof) as (K, dof) float64; ValueError naming what is wrong.
+
+        The check every method taking q makes first: shape, then NaN or Inf (state, joint).
+        """
+        return self._states(q)
+
     def _states(self, q):
         """Return q as a (K, dof) float64 array the kernels take; ValueError naming what is wrong.
 

@@ -157,6 +157,21 @@ class Result:
         return Result(self.contacts, stats)
 
 
+class Description(NamedTuple):
+    """What builds a World again elsewhere (another process): plain, picklable values.
+
+    :meth:`World.describe` gives it, :meth:`World.from_description` builds from it; the new
+    World answers ``check_states``, ``check_joints`` and ``step`` as this one does, bit for bit
+    (its first step has no last input to sweep from or reuse).
+    """
+
+    settings: dict     # the constructor's keyword arguments
+    colliders: tuple   # static_scene.Colliders, every collider in slot order, enabled or not
+    filters: tuple     # set_filters' (categories, masks, ignored_pairs) as given
+    robot: object      # the Robot of set_robot, or None
+    base_pose: object  # its base pose (7,), or None
+
+
 class _StaticRows(NamedTuple):
     """What the World derives from the scene: one entry per static row (enabled collider)."""
 
@@ -1091,6 +1106,30 @@ class World:
         assert np.array_equal(self._loose.rows, np.flatnonzero(self._loose.flags)), \
             'loose rows and flags disagree'
         self._phase.validate(self._boxes, static.count, self._phase_rows, self._loose.flags)
+
+    def describe(self):
+        """Return a :class:`Description` of this World: settings, colliders, filters, robot."""
+        settings = {
+            'broad_phase': self._phase_name, 'sphere_prefilter': self._sphere_prefilter,
+            'octree_max_depth': self._settings.octree_max_depth,
+            'octree_leaf_cooldown_ticks': self._settings.octree_leaf_cooldown_ticks,
+            'threads': self._workers.threads, 'margin': self._margin,
+            'continuous': self._continuous, 'continuous_tolerance': self._tolerance}
+        robot = self._robot
+        return Description(settings, tuple(np.array(part) for part in self._scene.colliders),
+                           self._filters_given, robot and robot.robot,
+                           robot and np.array(robot.base_pose))
+
+    @classmethod
+    def from_description(cls, description, **settings):
+        """Build a World from :meth:`describe`'s answer; ``settings`` override its settings."""
+        world = cls(**{**description.settings, **settings})
+        ids, poses, half_extents, margins, categories, masks, enabled = description.colliders
+        world.add_static(ids, poses, half_extents, margins, categories, masks, enabled)
+        world.set_filters(*description.filters)
+        if description.robot is not None:
+            world.set_robot(description.robot, description.base_pose)
+        return world
 
     def close(self):
         """Stop the World's helper threads (none with ``threads=1``)."""
