@@ -16,7 +16,7 @@ setup(
     install_requires=['setuptools', 'numpy', 'numba', 'trimesh', 'pycollada'],
     extras_require={
         # pin and example-robot-data: the robot model's FK reference and its robots; ray: the
-        # cluster's tests (test_cluster.py skips without it).
+        # cluster's tests.
         'test': ['pytest', 'hypothesis', 'python-fcl', 'coal', 'pin', 'example-robot-data',
                  'ray'],
         # robot sections: coal, mujoco; robot_model: pin, example-robot-data (its Panda).

@@ -12,14 +12,12 @@ import sys
 
 import numpy as np
 import pytest
-
+import ray  # the 'test' extra has it, and CI installs it: no cluster test is skipped
 from test_robot_world import panda, panda_world, random_states  # noqa: F401 (a fixture)
 
-ray = pytest.importorskip('ray')
-
-from collision_node import World  # noqa: E402 (after the skip without Ray)
-from collision_node.cluster import ClusterChecker, ClusterError  # noqa: E402
-from collision_node.tools import label  # noqa: E402
+from collision_node import World
+from collision_node.cluster import ClusterChecker, ClusterError
+from collision_node.tools import label
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 
