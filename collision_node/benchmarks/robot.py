@@ -458,6 +458,31 @@ def methods():
     return made
 
 
+def time_round(method, states, batch, first_round, states_per_round, batch_states, seconds,
+               answers, batches):
+    """Time ``method`` on one round: its states one by one, or its batch in one call.
+
+    Adds the seconds per state to ``seconds[method.name]`` and the answers to
+    ``answers[method.name]``; a batch it checked goes to ``batches``. The first round warms
+    the method up first, untimed.
+    """
+    if method.batch:
+        if first_round:
+            method.call(batch[:WARM_STATES])
+        before = time.perf_counter()
+        raw = method.call(batch)
+        seconds[method.name].append((time.perf_counter() - before) / batch_states)
+        answers[method.name].extend(method.answers(raw, batch_states))
+        batches.append(batch)
+        return
+    inputs = method.inputs(states)
+    if first_round:
+        _time_states(method, inputs, min(WARM_STATES, states_per_round))
+    taken, raws = _time_states(method, inputs, states_per_round)
+    seconds[method.name].extend(taken)
+    answers[method.name].extend(method.answer(raw) for raw in raws)
+
+
 def _time_states(method, inputs, count):
     """Call ``method`` on states 0..count-1 of ``inputs``; return (seconds per call, raws)."""
     call, collect, clock = method.call, method.collect, time.perf_counter
@@ -496,21 +521,8 @@ def robot_rows(states_per_round, batch_states, rounds, progress=print):
         order = running[round_index % len(running):] + running[:round_index % len(running)]
         for method in list(order):
             try:
-                if method.batch:
-                    if round_index == 0:
-                        method.call(batch[:WARM_STATES])
-                    before = time.perf_counter()
-                    raw = method.call(batch)
-                    seconds[method.name].append((time.perf_counter() - before) / batch_states)
-                    answers[method.name].extend(method.answers(raw, batch_states))
-                    batch_compared.append(batch)
-                    continue
-                inputs = method.inputs(states)
-                if round_index == 0:
-                    _time_states(method, inputs, min(WARM_STATES, states_per_round))
-                taken, raws = _time_states(method, inputs, states_per_round)
-                seconds[method.name].extend(taken)
-                answers[method.name].extend(method.answer(raw) for raw in raws)
+                time_round(method, states, batch, round_index == 0, states_per_round,
+                           batch_states, seconds, answers, batch_compared)
             except Exception as error:  # one broken method must not hide the others
                 rows[method.name] = {'method': method.name, 'setup': method.setup,
                                      'error': '%s: %s' % (type(error).__name__, error)}

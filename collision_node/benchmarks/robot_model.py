@@ -44,8 +44,7 @@ import numpy as np
 
 from collision_node.benchmarks import robot
 from collision_node.benchmarks.robot import (
-    _library, _time_states, answers_text, contact_keys, Method, pair_key, rotation, Unavailable,
-    WARM_STATES)
+    _library, answers_text, contact_keys, Method, pair_key, rotation, Unavailable)
 from collision_node.pipeline import urdf
 from collision_node.pipeline.robot import pose_from, Robot
 from collision_node.pipeline.sat import signed_distance
@@ -506,21 +505,8 @@ def robot_model_rows(states_per_round, batch_states, rounds, segments, seed=0, p
                     path_reports |= contact_keys(result.contacts)
                 continue
             try:
-                if method.batch:
-                    if round_index == 0:
-                        method.call(batch[:WARM_STATES])
-                    before = time.perf_counter()
-                    raw = method.call(batch)
-                    seconds[method.name].append((time.perf_counter() - before) / batch_states)
-                    answers[method.name].extend(method.answers(raw, batch_states))
-                    every_batch.append(batch)
-                    continue
-                inputs = method.inputs(states)
-                if round_index == 0:
-                    _time_states(method, inputs, min(WARM_STATES, states_per_round))
-                taken, raws = _time_states(method, inputs, states_per_round)
-                seconds[method.name].extend(taken)
-                answers[method.name].extend(method.answer(raw) for raw in raws)
+                robot.time_round(method, states, batch, round_index == 0, states_per_round,
+                                 batch_states, seconds, answers, every_batch)
             except Exception as error:  # one broken method must not hide the others
                 rows[method.name] = {'method': method.name, 'setup': method.setup,
                                      'error': '%s: %s' % (type(error).__name__, error)}
