@@ -11,6 +11,7 @@ import random
 import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -61,6 +62,23 @@ def test_a_signal_before_the_start_is_a_clean_exit(signum):
                           timeout=60)
     assert (done.returncode, done.stderr) == (0, '')
     assert done.stdout == ''
+
+
+def test_a_second_signal_ends_a_shutdown_that_hangs():
+    """The first signal asks for a clean shutdown; a second one does not wait for it."""
+    code = ('import os, signal, time\n'
+            'from collision_node.ros.signal_latch import LATCH\n'
+            'LATCH.install()\n'
+            'os.kill(os.getpid(), signal.SIGINT)\n'
+            'print("recorded", LATCH.received == signal.SIGINT, flush=True)\n'
+            'os.kill(os.getpid(), signal.SIGTERM)\n'
+            'time.sleep(30)\n'  # a shutdown that hangs
+            'print("not reached")\n')
+    started = time.monotonic()
+    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=60)
+    assert (done.returncode, done.stdout, done.stderr) == (0, 'recorded True\n', '')
+    assert time.monotonic() - started < 20.0
 
 
 def test_an_error_with_the_context_valid_still_ends_the_program_with_it():

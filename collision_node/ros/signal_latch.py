@@ -7,10 +7,12 @@ its autostart transitions) a signal ends the process at once with status 0. An e
 there would land inside numba's or rclpy's half-made objects (seen: llvmlite's destructor then
 prints a traceback), and nothing the program made is in use yet; numba writes each cache file
 whole (a temporary file, renamed), so an exit mid-compile leaves no broken cache. After the
-start the latch only records the signal: an exception landing in a callback, a lifecycle
-transition or ``destroy_node`` would leave a traceback. rclpy's own handler, which rclpy.init
-installs over this one and which calls it after its own work, shuts the context down: that ends
-a running program's spin (collision_node.ros.lifetime).
+start the latch only records the first signal: an exception landing in a callback, a
+lifecycle transition or ``destroy_node`` would leave a traceback. rclpy's own handler, which
+rclpy.init installs over this one and which calls it after its own work, shuts the context
+down: that ends a running program's spin (collision_node.ros.lifetime). A second signal ends
+the process at once, with status 0 too: whoever sends it (a second Ctrl-C, a launcher's
+SIGTERM after its SIGINT) will not wait for a shutdown that hangs.
 """
 import os
 import signal
@@ -52,16 +54,15 @@ class SignalLatch:
         self.starting = False
 
     def __call__(self, signum, frame):
-        """Record ``signum``; end the process with status 0 if the program is starting."""
-        if self.received is None:
-            self.received = signum
-        if self.starting:
+        """Record ``signum``; end the process with status 0 if starting or signalled before."""
+        if self.starting or self.received is not None:
             for stream in (sys.stdout, sys.stderr):
                 try:
                     stream.flush()
                 except (OSError, RuntimeError, ValueError):  # e.g. a reentrant write
                     pass
             os._exit(0)
+        self.received = signum
 
 
 LATCH = SignalLatch()
