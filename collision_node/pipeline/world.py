@@ -850,19 +850,11 @@ class World:
         """Return the contacts and counters of large ``states``, stepped by a World of its own.
 
         Consecutive states keep what did not change between them, as ticks do; the World's
-        own steps are not touched.
+        own steps are not touched. That World is built from this one's description (no private
+        field set from outside), discrete: a state has no motion to sweep.
         """
-        colliders = self._scene.colliders
-        on = np.flatnonzero(colliders.enabled)
-        world = World(self._phase_name, self._sphere_prefilter, self._settings.octree_max_depth,
-                      self._settings.octree_leaf_cooldown_ticks, self._workers.threads,
-                      self._margin)
+        world = World.from_description(self.describe(), continuous=False)
         try:
-            world.set_static(colliders.poses[on], colliders.half_extents[on], colliders.ids[on],
-                             colliders.margins[on], colliders.categories[on],
-                             colliders.masks[on])
-            world._filter = self._filter
-            world._set_static_rows(world._static)
             found, counters = [], np.zeros(4, np.int64)
             for state, poses in enumerate(states):
                 try:
