@@ -533,3 +533,45 @@ def test_motion_radii_bound_every_corner(name, own, ament_prefix):
         index = robot.joint_names.index('grip')
         assert radii[robot.box_links.index('side'), index] == 0.0
         assert radii[robot.box_links.index('twin'), index] == pytest.approx(2.0)
+
+
+def common_ancestor(parents, first, second):
+    """Return the nearest link at or above both links (a plain walk, as a reference)."""
+    above_first = [first]
+    while parents[above_first[-1]] >= 0:
+        above_first.append(parents[above_first[-1]])
+    while second not in above_first:
+        second = parents[second]
+    return second
+
+
+@pytest.mark.parametrize('name', ['own', *sorted(REFERENCE_ROBOTS)])
+def test_pair_motion_radii_bound_every_corner_relative_to_the_common_ancestor(
+        name, own, ament_prefix):
+    """Two boxes of a pair move apart or together no faster than their pair's radii say."""
+    robot = own[0] if name == 'own' else reference_robot(name)
+    pairs = robot.allowed_box_pairs
+    radii = robot.pair_motion_radii(pairs[:, 0], pairs[:, 1])
+    assert radii.shape == (len(pairs), robot.dof) and (radii >= 0).all()
+    assert (radii <= robot.model.motion_radii[pairs[:, 0]]
+            + robot.model.motion_radii[pairs[:, 1]] + 1e-12).all()
+    static = robot.pair_motion_radii(pairs[:, 0], np.full(len(pairs), -1))
+    np.testing.assert_array_equal(static, robot.model.motion_radii[pairs[:, 0]])
+    rng = np.random.default_rng(12)
+    steps = np.linspace(0.0, 1.0, 41)
+    parents, links = robot.model.parents, robot.box_link_index
+    ancestors = [common_ancestor(parents, links[a], links[b]) for a, b in pairs]
+    for _ in range(4):
+        q0, q1 = random_q(robot, rng, 2)
+        states = q0 + steps[:, None] * (q1 - q0)
+        points = corners(robot, robot.box_poses(states))  # (K, B, 8, 3)
+        frames = np.array([[matrix(pose) for pose in robot.link_poses(q)] for q in states])
+        bound = np.abs(states - q0) @ radii.T  # (K, P)
+        for p, (a, b) in enumerate(pairs):
+            frame = frames[:, ancestors[p]]  # (K, 4, 4): the pair's corners in that link
+            moved = 0.0
+            for box in (a, b):
+                local = np.einsum('kji,kcj->kci', frame[:, :3, :3],
+                                  points[:, box] - frame[:, None, :3, 3])
+                moved = moved + np.linalg.norm(local - local[0], axis=-1).max(axis=-1)
+            assert (moved <= bound[:, p] * (1 + 1e-9) + 1e-12).all(), (name, a, b)

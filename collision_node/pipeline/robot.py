@@ -46,7 +46,11 @@ is the sum, rotated, of the translations below joint k on the chain: each joint 
 box centre's offset in its link and the box's half diagonal. So motion_radii[b, j] = sum over
 the chain joints k driven by q_j of |m_k| (that reach if k turns, 1 if it slides); joints off
 the chain contribute 0. A continuous joint driving a prismatic mimic has an infinite travel,
-and so infinite radii above it.
+and so infinite radii above it. Two boxes of the robot, seen from their links' nearest common
+ancestor, move only by the joints below it (the ones above move both as one, which changes no
+distance between them): their pair's radii sum each box's over those joints alone
+(Robot.pair_motion_radii), much less than the two boxes' motion_radii for neighbours far
+from the root.
 """
 import math
 from typing import NamedTuple
@@ -99,7 +103,7 @@ class Robot:
     """A robot's collision boxes and their poses for joint values q (module docstring)."""
 
     def __init__(self, joint_names, link_names, box_shapes, box_volume_ratio,
-                 collision_origins, disabled_link_pairs, model):
+                 collision_origins, disabled_link_pairs, model, travels):
         """Hold a built model; use :meth:`from_urdf`."""
         self.joint_names = joint_names
         self.link_names = link_names
@@ -115,6 +119,7 @@ class Robot:
         self.half_extents = model.half_extents
         self.joint_limits = model.joint_limits
         self.allowed_box_pairs = _allowed_box_pairs(self.box_links, disabled_link_pairs)
+        self._travels = travels  # per link: the largest |value| of its prismatic joint
 
     @classmethod
     def from_urdf(cls, urdf_source, srdf=None, package_paths=()):
@@ -178,7 +183,26 @@ class Robot:
         geometric = {element.link for element in description.collisions}
         disabled = _disabled_link_pairs(links, joint_of, geometric, rules)
         return cls(joint_names, links, tuple(element.shape for element in description.collisions),
-                   np.array([box[3] for box in boxes]), origins, disabled, model)
+                   np.array([box[3] for box in boxes]), origins, disabled, model, travels)
+
+    def pair_motion_radii(self, first, second):
+        """Return radii (P, dof) bounding how fast the boxes of each pair can close in.
+
+        Over a straight joint-space step dq, the distance between boxes ``first[p]`` and
+        ``second[p]`` changes by at most sum_j |dq_j| radii[p, j] (module docstring, Motion
+        bound). ``second[p]`` -1: a static box, and the radii are ``first[p]``'s. Two boxes of
+        the robot: only the joints below their links' nearest common ancestor count, for
+        each box; the joints above it move both boxes as one, which leaves their distance
+        as it is.
+        """
+        model = self.model
+        radii = model.motion_radii[first]
+        for p in np.flatnonzero(np.asarray(second) >= 0):
+            a, b = first[p], second[p]
+            above = _common_ancestor(model.parents, model.box_links[a], model.box_links[b])
+            radii[p] = _chain_radii(model, self._travels, a, above) \
+                + _chain_radii(model, self._travels, b, above)
+        return radii
 
     @property
     def dof(self):
@@ -350,19 +374,38 @@ def _boxes(description, package_paths):
 
 def _motion_radii(model, travels):
     """Return motion_radii (B, dof): the module docstring's Motion bound."""
-    radii = np.zeros((len(model.box_links), len(model.joint_limits)))
-    for box, link in enumerate(model.box_links):
-        # Walking up from the box: the reach below the current joint grows as we go.
-        reach = np.linalg.norm(model.box_translations[box]) \
-            + np.linalg.norm(model.half_extents[box])
-        while model.parents[link] != NO_INDEX:
-            kind = model.joint_types[link]
-            if kind != FIXED:
-                weight = abs(model.multipliers[link])
-                radii[box, model.q_indices[link]] += weight * (reach if kind == REVOLUTE
-                                                               else 1.0)
-            reach += np.linalg.norm(model.origin_translations[link]) + travels[link]
-            link = model.parents[link]
+    return np.array([_chain_radii(model, travels, box, NO_INDEX)
+                     for box in range(len(model.box_links))]).reshape(-1, len(model.joint_limits))
+
+
+def _common_ancestor(parents, first, second):
+    """Return the nearest link that is ``first`` or above it and ``second`` or above it."""
+    chain = set()
+    while first != NO_INDEX:
+        chain.add(first)
+        first = parents[first]
+    while second not in chain:
+        second = parents[second]
+    return second
+
+
+def _chain_radii(model, travels, box, above):
+    """Return the Motion bound's radii (dof,) of ``box`` for the joints below link ``above``.
+
+    ``above`` NO_INDEX: every joint up to the root. An ancestor link of the box's link: only
+    the joints between them, the ones that move the box relative to that link.
+    """
+    radii = np.zeros(len(model.joint_limits))
+    link = model.box_links[box]
+    # Walking up from the box: the reach below the current joint grows as we go.
+    reach = np.linalg.norm(model.box_translations[box]) + np.linalg.norm(model.half_extents[box])
+    while link != above and model.parents[link] != NO_INDEX:
+        kind = model.joint_types[link]
+        if kind != FIXED:
+            weight = abs(model.multipliers[link])
+            radii[model.q_indices[link]] += weight * (reach if kind == REVOLUTE else 1.0)
+        reach += np.linalg.norm(model.origin_translations[link]) + travels[link]
+        link = model.parents[link]
     return radii
 
 
@@ -505,22 +548,31 @@ def forward_kinematics(model, base_pose, q, out, rotations, translations):
     """
     link_transforms(model, base_pose, q, rotations, translations)
     for b in range(model.box_links.shape[0]):
-        link = model.box_links[b]
-        r = rotations[link]
-        m = model.box_rotations[b]
-        for i in range(3):
-            out[b, i] = translations[link, i] + r[i, 0] * model.box_translations[b, 0] \
-                + r[i, 1] * model.box_translations[b, 1] + r[i, 2] * model.box_translations[b, 2]
-        out[b, 3], out[b, 4], out[b, 5], out[b, 6] = _quaternion_from_rotation(
-            r[0, 0] * m[0, 0] + r[0, 1] * m[1, 0] + r[0, 2] * m[2, 0],
-            r[0, 0] * m[0, 1] + r[0, 1] * m[1, 1] + r[0, 2] * m[2, 1],
-            r[0, 0] * m[0, 2] + r[0, 1] * m[1, 2] + r[0, 2] * m[2, 2],
-            r[1, 0] * m[0, 0] + r[1, 1] * m[1, 0] + r[1, 2] * m[2, 0],
-            r[1, 0] * m[0, 1] + r[1, 1] * m[1, 1] + r[1, 2] * m[2, 1],
-            r[1, 0] * m[0, 2] + r[1, 1] * m[1, 2] + r[1, 2] * m[2, 2],
-            r[2, 0] * m[0, 0] + r[2, 1] * m[1, 0] + r[2, 2] * m[2, 0],
-            r[2, 0] * m[0, 1] + r[2, 1] * m[1, 1] + r[2, 2] * m[2, 1],
-            r[2, 0] * m[0, 2] + r[2, 1] * m[1, 2] + r[2, 2] * m[2, 2])
+        center, r = box_frame(model, rotations, translations, b)
+        out[b, 0], out[b, 1], out[b, 2] = center
+        out[b, 3], out[b, 4], out[b, 5], out[b, 6] = _quaternion_from_rotation(*r)
+
+
+@kernel
+def box_frame(model, rotations, translations, b):
+    """Return box b's centre (3-tuple) and rotation (row-major 9-tuple) from the link frames."""
+    link = model.box_links[b]
+    r = rotations[link]
+    m = model.box_rotations[b]
+    t = model.box_translations[b]
+    center = (translations[link, 0] + r[0, 0] * t[0] + r[0, 1] * t[1] + r[0, 2] * t[2],
+              translations[link, 1] + r[1, 0] * t[0] + r[1, 1] * t[1] + r[1, 2] * t[2],
+              translations[link, 2] + r[2, 0] * t[0] + r[2, 1] * t[1] + r[2, 2] * t[2])
+    return center, (
+        r[0, 0] * m[0, 0] + r[0, 1] * m[1, 0] + r[0, 2] * m[2, 0],
+        r[0, 0] * m[0, 1] + r[0, 1] * m[1, 1] + r[0, 2] * m[2, 1],
+        r[0, 0] * m[0, 2] + r[0, 1] * m[1, 2] + r[0, 2] * m[2, 2],
+        r[1, 0] * m[0, 0] + r[1, 1] * m[1, 0] + r[1, 2] * m[2, 0],
+        r[1, 0] * m[0, 1] + r[1, 1] * m[1, 1] + r[1, 2] * m[2, 1],
+        r[1, 0] * m[0, 2] + r[1, 1] * m[1, 2] + r[1, 2] * m[2, 2],
+        r[2, 0] * m[0, 0] + r[2, 1] * m[1, 0] + r[2, 2] * m[2, 0],
+        r[2, 0] * m[0, 1] + r[2, 1] * m[1, 1] + r[2, 2] * m[2, 1],
+        r[2, 0] * m[0, 2] + r[2, 1] * m[1, 2] + r[2, 2] * m[2, 2])
 
 
 @kernel

@@ -6,20 +6,25 @@ pairs outside ``allowed_box_pairs``) is added to the World's ignored pairs, so a
 through the joints is checked exactly as ``World.step`` checks its box poses.
 
 Trajectories. Waypoints are checked exactly (``World.check_states``). Between waypoints k and
-k + 1 the joints move on the straight segment q(s) = q_k + s (q_k+1 - q_k), s in [0, 1]. On a
-piece [s0, s1] of it every point of box b stays within
+k + 1 the joints move on the straight segment q(s) = q_k + s (q_k+1 - q_k), s in [0, 1].
+Over a part of length ds of it, the distance between the two boxes of a pair changes by at
+most ds * motion, motion = sum_j |q_k+1,j - q_k,j| radii[j] (robot.py derives the radii,
+Robot.pair_motion_radii; joint limits assumed; for two boxes of the robot only the joints
+below their links' common ancestor count: the joints above it move both as one). So a
+configuration where the pair is ``clearance`` farther apart than its margin proves the pair
+free on every configuration within clearance / motion of it on the segment.
 
-    r_b = (s1 - s0) / 2 * sum_j |q_k+1,j - q_k,j| * motion_radii[b, j]
-
-of where it is at the piece's middle (robot.py derives the radii; joint limits assumed). So if
-box a grown by r_a (plus the margin that pair reports within) and box b grown by r_b are
-apart, by the separating axis test, no configuration of the piece brings the pair together:
-the piece is free for that pair. A pair the test cannot clear is split in halves, left half
-first, until its pieces move less than ``resolution`` (the sum r_a + r_b); the first piece
-still not cleared is reported, with ``toi`` its start. So a segment is reported only when a
-configuration on it collides or comes within ``resolution`` of colliding (or of the margin),
-and every segment with a colliding configuration is reported: nothing between waypoints is
-missed. A sampled check (MoveIt's, at its waypoints or at a fixed step) promises neither.
+The proof is conservative advancement. The waypoints at both ends are placed once (each is
+the end of one segment and the start of the next); a pair whose clearance at the start
+covers the whole segment, or whose clearances at the two ends meet, is free. Otherwise the
+boxes are placed where the least proven pair stops being proven, and every waiting pair's
+proof grows from there: bounding spheres, then the separating axis test's widest gap, and for
+the pairs stopped there the exact distance. A stopped pair whose exact clearance is at most
+``resolution`` is reported, with ``toi`` that configuration. So a segment is reported only when
+a configuration on it comes within ``resolution`` of the pair's margin (colliding, with margin
+0, or within ``resolution`` of it), and every segment with a colliding configuration is
+reported: nothing between waypoints is missed. A sampled check (MoveIt's, at its waypoints or at
+a fixed step) promises neither.
 """
 import math
 
@@ -29,21 +34,19 @@ from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.contacts import DYNAMIC
 from collision_node.pipeline.distance import box_distance
 from collision_node.pipeline.frames import matrix, relative_pose, sum_abs
-from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS, write_boxes
-from collision_node.pipeline.robot import (box_poses_of_states, forward_kinematics,
-                                           IDENTITY_POSE, link_frames, RobotModel)
-from collision_node.pipeline.sat import NEAR, SEPARATED, separating_axis_test
+from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS
+from collision_node.pipeline.robot import (box_frame, box_poses_of_states,
+                                           forward_kinematics, IDENTITY_POSE, link_frames,
+                                           link_transforms, RobotModel)
+from collision_node.pipeline.sat import COLLIDING, SEPARATED, separating_axis_test
 from collision_node.pipeline.small_scene import check_states, STATE_CONTACT_DTYPE
 
 # What a segment's row takes from the exact contact at its toi, when its pair collides there.
 GEOMETRY = ('x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth', 'distance')
-# Spheres clear a pair only when apart by this factor on the squared distance: 8 ulps of
-# rounding in the sums and squares never clear a pair that touches.
-SPHERE_SAFETY = 1.0 + 1e-14
 DEFAULT_RESOLUTION = 1e-3  # m of motion: a reported segment is within this of a collision
-# Halvings of a segment at most: 2^-40 of a segment is below any motion float64 resolves
-# beside a robot's size; a pair not cleared by then is reported (conservative).
-MAX_DEPTH = 40
+# A proof reaches a hair short of where clearance / motion says: the division and the sum
+# with s round, and a rounding up must never claim a configuration not proven.
+SHRINK = 1.0 - 1e-12
 
 
 class RobotBodies:
@@ -89,7 +92,11 @@ def segment_contacts(world, bodies, waypoints, exact, found, keys):
     (id_a, type_b, id_b). A segment's row carries the contact of its pair at q(toi) when the
     pair collides there; a pair reported at toi 0 that waypoint k reports already is left out.
     """
+    at_waypoints = exact.copy()
+    at_waypoints['toi'] = 0.0  # check_states marks a discrete contact at the step's end, 1
     segment, pair = np.nonzero(found >= 0)
+    if not len(segment):  # a free path's answer: sorted already, as check_states sorts
+        return at_waypoints
     toi = found[segment, pair]
     reported = {(row['state'], row['id_a'], row['type_b'], row['id_b']) for row in exact}
     new = [i for i in range(len(segment))
@@ -108,8 +115,6 @@ def segment_contacts(world, bodies, waypoints, exact, found, keys):
             if contact is not None:
                 for name in GEOMETRY:
                     rows[i][name] = contact[name]
-    at_waypoints = exact.copy()
-    at_waypoints['toi'] = 0.0  # check_states marks a discrete contact at the step's end, 1
     contacts = np.concatenate([at_waypoints, rows])
     order = np.lexsort((contacts['toi'], contacts['id_b'], contacts['type_b'], contacts['id_a'],
                         contacts['state']))
@@ -140,104 +145,138 @@ def check_joint_states(model_fields, base_pose, joint_states, n_static, statics,
 
 
 @kernel
-def first_uncleared_pieces(model_fields, base_pose, waypoints, pairs, margins, boxes,
-                           resolution):
-    """Return, per segment and pair, where its first piece the test cannot clear starts.
+def first_uncleared_pieces(model_fields, base_pose, waypoints, pairs, pair_radii, margins,
+                           boxes, resolution):
+    """Return, per segment and pair, where the first configuration not proven free lies.
 
     ``boxes`` (centers, rotations, extents): rows 0..B-1 are written here for the robot's
     boxes, the static boxes follow them. ``pairs`` (P, 2) rows of ``boxes``, the first one a
-    robot box, ``margins`` (P,) the distance within which each pair counts. Returns (W - 1, P):
-    s in [0, 1) where the first piece not cleared starts, or -1 (the whole segment is free).
-    ``model_fields``: the RobotModel as a plain tuple (RobotBodies.model_fields).
+    robot box, ``pair_radii`` (P, dof) their Robot.pair_motion_radii, ``margins`` (P,) the
+    distance within which each pair counts. Returns (W - 1, P):
+    s in [0, 1) where the pair comes within ``resolution`` of its margin, or -1 (the whole
+    segment is proven free). ``model_fields``: the RobotModel as a plain tuple
+    (RobotBodies.model_fields).
     """
     model = RobotModel(*model_fields)
-    centers, rotations, extents = boxes
-    count = model.half_extents.shape[0]
     dof = waypoints.shape[1]
     found = np.full((waypoints.shape[0] - 1, len(pairs)), -1.0)
-    # q, box poses, link frames, and AABBs and radii (written by write_boxes, not read).
     link_rotations, link_translations = link_frames(model)
-    scratch = (np.empty(dof), np.empty((count, 7)), link_rotations, link_translations,
-               np.empty((count, 2, 3)), np.empty(count))
-    reach = np.zeros(len(centers))  # per box: sum_j |dq_j| motion_radii[b, j]; statics 0
-    # Depth-first over the pieces, left half first, so that a pair's first report is its
-    # earliest. Row d of ``pending`` lists the pairs a piece of depth d still has to clear:
-    # both halves of a piece read the row its test wrote (the left half's own pieces write
-    # only deeper rows), so the boxes are placed once per piece for all its pairs.
-    pending = np.empty((MAX_DEPTH + 1, len(pairs)), np.int64)
-    pending_count = np.zeros(MAX_DEPTH + 1, np.int64)
-    stack = np.empty((MAX_DEPTH + 2, 2))
-    depths = np.empty(MAX_DEPTH + 2, np.int64)
+    scratch = (np.empty(dof), link_rotations, link_translations)  # q and the link frames
+    # The boxes at the segment's start (its first waypoint), end and current configuration:
+    # the end's placement is the next segment's start, so each waypoint is placed once.
+    start = boxes
+    end = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
+    at = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
+    motions = np.empty(len(pairs))  # per pair: how far it closes in over the whole segment
+    cleared = np.empty(len(pairs))  # the pair is proven free on [0, cleared]
+    from_end = np.empty(len(pairs))  # and on [from_end, 1]
+    pending = np.empty(len(pairs), np.int64)
+    _place(model, base_pose, waypoints[0], waypoints[0], 0.0, scratch, start)
+    radii = np.sqrt(np.sum(start[2] * start[2], axis=1))  # half diagonals: the boxes' spheres
     for k in range(waypoints.shape[0] - 1):
-        for b in range(count):
-            reach[b] = 0.0
+        for p in range(len(pairs)):
+            motions[p] = 0.0
             for j in range(dof):
-                reach[b] += abs(waypoints[k + 1, j] - waypoints[k, j]) * model.motion_radii[b, j]
-        pending[0, :] = np.arange(len(pairs))
-        pending_count[0] = len(pairs)
-        stack[0, 0], stack[0, 1], depths[0] = 0.0, 1.0, 0
-        top = 1
-        while top > 0:
-            top -= 1
-            s0, s1, depth = stack[top, 0], stack[top, 1], depths[top]
-            half = 0.5 * (s1 - s0)
-            _place(model, base_pose, waypoints[k], waypoints[k + 1], s0 + half, scratch, boxes)
+                motions[p] += abs(waypoints[k + 1, j] - waypoints[k, j]) * pair_radii[p, j]
+        _place(model, base_pose, waypoints[k + 1], waypoints[k + 1], 0.0, scratch, end)
+        waiting = 0
+        for p in range(len(pairs)):
+            a, b = pairs[p, 0], pairs[p, 1]
+            motion = motions[p]
+            free = _clearance(start, radii, a, b, margins[p] + max(motion, resolution),
+                              True) - margins[p]
+            if free > motion:
+                continue
+            if free <= resolution:
+                found[k, p] = 0.0
+                continue
+            cleared[p] = free / motion * SHRINK
+            free = _clearance(end, radii, a, b, margins[p] + motion * (1.0 - cleared[p]), False) \
+                - margins[p]
+            from_end[p] = 1.0 - free / motion * SHRINK if free > 0.0 else 1.0
+            if from_end[p] > cleared[p]:
+                pending[waiting] = p
+                waiting += 1
+        # Conservative advancement (module docstring): place the boxes where the least proven
+        # pair stops being proven; every waiting pair's proof grows from there by its
+        # clearance over its motion (cheap bounds for the pairs proven beyond it, the exact
+        # distance for those stopped there); a stopped pair within ``resolution`` is reported.
+        # A stopped pair advances at least resolution / motion per placement: it ends.
+        while waiting:
+            s = 1.0
+            for i in range(waiting):
+                s = min(s, cleared[pending[i]])
+            _place(model, base_pose, waypoints[k], waypoints[k + 1], s, scratch, at)
             left = 0
-            for i in range(pending_count[depth]):
-                p = pending[depth, i]
-                if found[k, p] >= 0.0:  # reported in an earlier piece
-                    continue
+            for i in range(waiting):
+                p = pending[i]
                 a, b = pairs[p, 0], pairs[p, 1]
-                if _cleared(centers, rotations, extents, a, b, half * reach[a],
-                            half * reach[b], margins[p]):
+                motion = motions[p]
+                stopped = cleared[p] <= s
+                enough = margins[p] + max(motion * (from_end[p] - s), resolution)
+                free = _clearance(at, radii, a, b, enough, stopped) - margins[p]
+                if stopped and free <= resolution:
+                    found[k, p] = s
                     continue
-                if half * (reach[a] + reach[b]) <= resolution or depth == MAX_DEPTH:
-                    found[k, p] = s0
+                if free > 0.0:
+                    cleared[p] = max(cleared[p], s + free / motion * SHRINK)
+                if stopped and cleared[p] <= s:  # no progress left in float64: report
+                    found[k, p] = s
                     continue
-                pending[depth + 1, left] = p
-                left += 1
-            if left:
-                pending_count[depth + 1] = left
-                stack[top, 0], stack[top, 1], depths[top] = s0 + half, s1, depth + 1
-                stack[top + 1, 0], stack[top + 1, 1], depths[top + 1] = s0, s0 + half, depth + 1
-                top += 2
+                if from_end[p] > cleared[p]:
+                    pending[left] = p
+                    left += 1
+            waiting = left
+        start, end = end, start
     return found
 
 
 @kernel
 def _place(model, base_pose, start, end, s, scratch, boxes):
-    """Write the robot's boxes at q(s) = start + s (end - start) into rows 0..B-1 of boxes."""
-    q, poses, link_rotations, link_translations, aabbs, radii = scratch
+    """Write the robot's boxes at q(s) = start + s (end - start) into rows 0..B-1 of boxes.
+
+    Straight from the link frames: a proof needs the boxes where they are, not the pose
+    a step would be handed, so the rotation skips the quaternion a pose holds.
+    """
+    q, link_rotations, link_translations = scratch
     centers, rotations, extents = boxes
     for j in range(q.shape[0]):
         q[j] = start[j] + s * (end[j] - start[j])
-    forward_kinematics(model, base_pose, q, poses, link_rotations, link_translations)
-    write_boxes(poses, model.half_extents, 0, None, centers, rotations, extents, aabbs, radii)
+    link_transforms(model, base_pose, q, link_rotations, link_translations)
+    for b in range(model.half_extents.shape[0]):
+        center, r = box_frame(model, link_rotations, link_translations, b)
+        for i in range(3):
+            centers[b, i] = center[i]
+            extents[b, i] = model.half_extents[b, i]
+            rotations[b, i, 0], rotations[b, i, 1], rotations[b, i, 2] = \
+                r[3 * i], r[3 * i + 1], r[3 * i + 2]
 
 
 @kernel
-def _cleared(centers, rotations, extents, a, b, grow_a, grow_b, margin):
-    """Tell whether boxes a and b stay over ``margin`` apart while moving up to ``grow_*``.
+def _clearance(boxes, radii, a, b, enough, exact):
+    """Return a lower bound on the distance between boxes a and b, rounding counted against it.
 
-    Every point of a moves at most ``grow_a`` and of b ``grow_b``, so the pair is cleared when
-    the boxes are more than ``grow_a + grow_b + margin`` apart now. Tested from cheap to exact:
-    the bounding spheres; the SAT with that distance as its margin (an axis separating by
-    more clears the pair, an overlap fails it); else the exact distance. The touching
-    tolerance counts against clearing, so rounding never clears a pair that would touch.
+    From cheap to exact, stopping once the bound passes ``enough``: the gap between the
+    bounding spheres (``radii``: each box's half diagonal), then the SAT's widest separating
+    gap (with ``enough`` as its margin), then, if ``exact``, the exact distance. An overlap
+    gives at most 0.
     """
+    centers, rotations, extents = boxes
     ea = (extents[a, 0], extents[a, 1], extents[a, 2])
     eb = (extents[b, 0], extents[b, 1], extents[b, 2])
     d = (centers[b, 0] - centers[a, 0], centers[b, 1] - centers[a, 1],
          centers[b, 2] - centers[a, 2])
-    apart = grow_a + grow_b + margin
-    # The seed paper's sphere prefilter: most pairs of a free path part here, for a few flops.
-    reach = math.sqrt(ea[0] * ea[0] + ea[1] * ea[1] + ea[2] * ea[2]) \
-        + math.sqrt(eb[0] * eb[0] + eb[1] * eb[1] + eb[2] * eb[2]) + apart
-    if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > reach * reach * SPHERE_SAFETY:
-        return True
+    tie = TIE_ULPS * EPS * (sum_abs(ea) + sum_abs(eb) + sum_abs(d) + abs(enough))
+    # The seed paper's sphere prefilter: most pairs of a free path part here, for a few flops
+    # (the root taken only then).
+    spheres = radii[a] + radii[b] + tie
+    squared = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+    if squared > (enough + spheres) * (enough + spheres):
+        return math.sqrt(squared) - spheres
     rel, t = relative_pose(matrix(rotations, a), matrix(rotations, b), d)
-    tie = TIE_ULPS * EPS * (sum_abs(ea) + sum_abs(eb) + sum_abs(d) + apart)
-    status, _, _ = separating_axis_test(rel, t, ea, eb, tie, apart + tie)
-    if status != NEAR:
-        return status == SEPARATED
-    return box_distance(rel, t, ea, eb)[0] > apart + tie
+    status, overlap, _ = separating_axis_test(rel, t, ea, eb, tie, max(enough, 0.0) + tie)
+    if status == COLLIDING:
+        return 0.0
+    if status == SEPARATED or not exact:
+        return -overlap - tie
+    return box_distance(rel, t, ea, eb)[0] - tie

@@ -468,10 +468,10 @@ class World:
 
         ``waypoints`` (W, dof). The contacts of waypoint k have ``state`` k and ``toi`` 0; a
         pair that is not proven free on segment k -> k + 1 (robot_bodies.py: nothing
-        between waypoints is missed; a report is a collision or within ``resolution`` metres
-        of motion of one) has ``state`` k and ``toi`` the fraction of the segment where its
-        first piece not proven free starts, with the contact at that configuration if the
-        pair collides there (else depth 0, a zero normal and ``distance`` NaN). Sorted by
+        between waypoints is missed; a report is a configuration within ``resolution``
+        metres of the pair's contact, or margin) has ``state`` k and ``toi`` the fraction of
+        the segment where that configuration lies, with the contact there if the pair
+        collides there (else depth 0, a zero normal and ``distance`` NaN). Sorted by
         (state, id_a, type_b, id_b, toi).
         """
         bodies = self._robot_bodies()
@@ -484,9 +484,9 @@ class World:
         if version != self._version or pairs_of is not bodies:  # kept while nothing changes
             arguments = self._robot_pairs(bodies)
             self._segment_pairs = (self._version, bodies, arguments)
-        pairs, keys, margins, boxes = arguments
+        pairs, keys, radii, margins, boxes = arguments
         found = first_uncleared_pieces(bodies.model_fields, bodies.base_pose, waypoints, pairs,
-                                       margins, boxes, max(resolution, 1e-12))
+                                       radii, margins, boxes, max(resolution, 1e-12))
         return Result(segment_contacts(self, bodies, waypoints, exact, found, keys))
 
     def _robot_bodies(self):
@@ -497,8 +497,9 @@ class World:
     def _robot_pairs(self, bodies):
         """Return the robot's pairs the filters let through, for the segment check.
 
-        (pairs (P, 2) rows of the boxes below, keys (P, 3) id_a, type_b, id_b, margins (P,),
-        boxes (centers, rotations, half extents): B rows for the robot, then the static rows).
+        (pairs (P, 2) rows of the boxes below, keys (P, 3) id_a, type_b, id_b, their motion
+        radii (P, dof), margins (P,), boxes (centers, rotations, half extents): B rows for
+        the robot, then the static rows).
         """
         count, statics = bodies.count, self._static.by_id
         checked = self._filter_table(count)
@@ -517,7 +518,9 @@ class World:
         boxes = tuple(np.concatenate([np.zeros((count,) + part.shape[1:]), part[:n_static]])
                       for part in (self._boxes.centers, self._boxes.rotations,
                                    self._boxes.half_extents))
-        return np.column_stack([a, rows]), np.column_stack([a, types, ids]), margins, boxes
+        radii = bodies.robot.pair_motion_radii(a, np.where(static, -1, j))
+        return (np.column_stack([a, rows]), np.column_stack([a, types, ids]), radii, margins,
+                boxes)
 
     # ------------------------------------------------------------------ the static scene
 
