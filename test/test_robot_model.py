@@ -575,3 +575,17 @@ def test_pair_motion_radii_bound_every_corner_relative_to_the_common_ancestor(
                                   points[:, box] - frame[:, None, :3, 3])
                 moved = moved + np.linalg.norm(local - local[0], axis=-1).max(axis=-1)
             assert (moved <= bound[:, p] * (1 + 1e-9) + 1e-12).all(), (name, a, b)
+
+
+def test_a_robot_without_joints_has_no_motion_and_its_path_is_its_pose():
+    from collision_node import World
+    robot = Robot.from_urdf('<robot name="post"><link name="base"><collision><geometry>'
+                            '<box size="0.2 0.2 1"/></geometry></collision></link></robot>')
+    assert robot.dof == 0 and robot.model.motion_radii.shape == (1, 0)
+    world = World()
+    world.set_static([[0.0, 0.0, 0.55, 0, 0, 0, 1], [1.0, 0.0, 0.0, 0, 0, 0, 1]],
+                     [0.1, 0.1, 0.1])
+    world.set_robot(robot)
+    rows = world.check_trajectory(np.zeros((3, 0))).contacts
+    assert [(int(row['state']), int(row['id_b']), float(row['toi'])) for row in rows] \
+        == [(0, 0, 0.0), (1, 0, 0.0), (2, 0, 0.0)]

@@ -374,8 +374,10 @@ def _boxes(description, package_paths):
 
 def _motion_radii(model, travels):
     """Return motion_radii (B, dof): the module docstring's Motion bound."""
-    return np.array([_chain_radii(model, travels, box, NO_INDEX)
-                     for box in range(len(model.box_links))]).reshape(-1, len(model.joint_limits))
+    radii = np.zeros((len(model.box_links), len(model.joint_limits)))
+    for box in range(len(model.box_links)):
+        radii[box] = _chain_radii(model, travels, box, NO_INDEX)
+    return radii
 
 
 def _common_ancestor(parents, first, second):
