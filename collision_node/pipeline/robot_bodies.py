@@ -47,6 +47,9 @@ DEFAULT_RESOLUTION = 1e-3  # m of motion: a reported segment is within this of a
 # A proof reaches a hair short of where clearance / motion says: the division and the sum
 # with s round, and a rounding up must never claim a configuration not proven.
 SHRINK = 1.0 - 1e-12
+# A pair's motion over a segment, rounded up likewise: the credit carried from waypoint to
+# waypoint subtracts it every segment.
+MOTION_SAFETY = 1.0 + 1e-12
 
 
 class RobotBodies:
@@ -162,37 +165,61 @@ def first_uncleared_pieces(model_fields, base_pose, waypoints, pairs, pair_radii
     found = np.full((waypoints.shape[0] - 1, len(pairs)), -1.0)
     link_rotations, link_translations = link_frames(model)
     scratch = (np.empty(dof), link_rotations, link_translations)  # q and the link frames
-    # The boxes at the segment's start (its first waypoint), end and current configuration:
-    # the end's placement is the next segment's start, so each waypoint is placed once.
+    # The boxes at the segment's start (its first waypoint), end and current configuration,
+    # each placed when a pair needs it: the end's placement is the next segment's start.
     start = boxes
     end = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     at = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
+    _place(model, base_pose, waypoints[0], waypoints[0], 0.0, scratch, start)
+    radii = np.sqrt(np.sum(start[2] * start[2], axis=1))  # half diagonals: the boxes' spheres
+    start_placed = True
+    # A lower bound on each pair's distance at the segment's start: what a test there or at
+    # an earlier waypoint proved, less the motion since (the bound's own argument). A pair
+    # whose credit covers its motion over the segment is free without a look: most pairs,
+    # most segments (Box2D's fat AABBs rest on the same idea).
+    credit = np.full(len(pairs), -np.inf)
     motions = np.empty(len(pairs))  # per pair: how far it closes in over the whole segment
     cleared = np.empty(len(pairs))  # the pair is proven free on [0, cleared]
     from_end = np.empty(len(pairs))  # and on [from_end, 1]
     pending = np.empty(len(pairs), np.int64)
-    _place(model, base_pose, waypoints[0], waypoints[0], 0.0, scratch, start)
-    radii = np.sqrt(np.sum(start[2] * start[2], axis=1))  # half diagonals: the boxes' spheres
     for k in range(waypoints.shape[0] - 1):
-        for p in range(len(pairs)):
-            motions[p] = 0.0
-            for j in range(dof):
-                motions[p] += abs(waypoints[k + 1, j] - waypoints[k, j]) * pair_radii[p, j]
-        _place(model, base_pose, waypoints[k + 1], waypoints[k + 1], 0.0, scratch, end)
+        end_placed = False
         waiting = 0
         for p in range(len(pairs)):
             a, b = pairs[p, 0], pairs[p, 1]
-            motion = motions[p]
-            free = _clearance(start, radii, a, b, margins[p] + max(motion, resolution),
-                              True) - margins[p]
-            if free > motion:
+            motion = 0.0
+            for j in range(dof):
+                motion += abs(waypoints[k + 1, j] - waypoints[k, j]) * pair_radii[p, j]
+            motion *= MOTION_SAFETY
+            motions[p] = motion
+            if credit[p] - margins[p] > motion:
+                credit[p] -= motion
                 continue
+            if not start_placed:
+                _place(model, base_pose, waypoints[k], waypoints[k], 0.0, scratch, start)
+                start_placed = True
+            enough = margins[p] + max(motion, resolution)
+            bound = _sphere_gap(start[0], radii, a, b)
+            if bound <= enough:
+                bound = _clearance(start, a, b, bound, enough, True)
+            free = bound - margins[p]
+            if free > motion:
+                credit[p] = bound - motion
+                continue
+            credit[p] = -np.inf  # unknown at the end until a test there
             if free <= resolution:
                 found[k, p] = 0.0
                 continue
             cleared[p] = free / motion * SHRINK
-            free = _clearance(end, radii, a, b, margins[p] + motion * (1.0 - cleared[p]), False) \
-                - margins[p]
+            if not end_placed:
+                _place(model, base_pose, waypoints[k + 1], waypoints[k + 1], 0.0, scratch, end)
+                end_placed = True
+            enough = margins[p] + motion * (1.0 - cleared[p])
+            bound = _sphere_gap(end[0], radii, a, b)
+            if bound <= enough:
+                bound = _clearance(end, a, b, bound, enough, False)
+            free = bound - margins[p]
+            credit[p] = bound
             from_end[p] = 1.0 - free / motion * SHRINK if free > 0.0 else 1.0
             if from_end[p] > cleared[p]:
                 pending[waiting] = p
@@ -214,7 +241,10 @@ def first_uncleared_pieces(model_fields, base_pose, waypoints, pairs, pair_radii
                 motion = motions[p]
                 stopped = cleared[p] <= s
                 enough = margins[p] + max(motion * (from_end[p] - s), resolution)
-                free = _clearance(at, radii, a, b, enough, stopped) - margins[p]
+                bound = _sphere_gap(at[0], radii, a, b)
+                if bound <= enough:
+                    bound = _clearance(at, a, b, bound, enough, stopped)
+                free = bound - margins[p]
                 if stopped and free <= resolution:
                     found[k, p] = s
                     continue
@@ -228,6 +258,7 @@ def first_uncleared_pieces(model_fields, base_pose, waypoints, pairs, pair_radii
                     left += 1
             waiting = left
         start, end = end, start
+        start_placed = end_placed
     return found
 
 
@@ -253,13 +284,27 @@ def _place(model, base_pose, start, end, s, scratch, boxes):
 
 
 @kernel
-def _clearance(boxes, radii, a, b, enough, exact):
+def _sphere_gap(centers, radii, a, b):
+    """Return the gap between the bounding spheres of boxes a and b, rounding against it.
+
+    The seed paper's sphere prefilter, as a lower bound on the boxes' distance: most pairs of
+    a free path are proven here, for a few flops. Small, so that numba inlines it in the
+    loops; ``radii``: each box's half diagonal.
+    """
+    dx = centers[b, 0] - centers[a, 0]
+    dy = centers[b, 1] - centers[a, 1]
+    dz = centers[b, 2] - centers[a, 2]
+    between = math.sqrt(dx * dx + dy * dy + dz * dz)
+    return between - radii[a] - radii[b] - TIE_ULPS * EPS * (between + radii[a] + radii[b])
+
+
+@kernel
+def _clearance(boxes, a, b, gap, enough, exact):
     """Return a lower bound on the distance between boxes a and b, rounding counted against it.
 
-    From cheap to exact, stopping once the bound passes ``enough``: the gap between the
-    bounding spheres (``radii``: each box's half diagonal), then the SAT's widest separating
-    gap (with ``enough`` as its margin), then, if ``exact``, the exact distance. An overlap
-    gives at most 0.
+    For a pair whose spheres' ``gap`` falls short of ``enough``: the SAT's widest separating
+    gap (with ``enough`` as its margin; the first gap past it ends the test), then, if
+    ``exact``, the exact distance. An overlap gives 0.
     """
     centers, rotations, extents = boxes
     ea = (extents[a, 0], extents[a, 1], extents[a, 2])
@@ -267,16 +312,10 @@ def _clearance(boxes, radii, a, b, enough, exact):
     d = (centers[b, 0] - centers[a, 0], centers[b, 1] - centers[a, 1],
          centers[b, 2] - centers[a, 2])
     tie = TIE_ULPS * EPS * (sum_abs(ea) + sum_abs(eb) + sum_abs(d) + abs(enough))
-    # The seed paper's sphere prefilter: most pairs of a free path part here, for a few flops
-    # (the root taken only then).
-    spheres = radii[a] + radii[b] + tie
-    squared = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-    if squared > (enough + spheres) * (enough + spheres):
-        return math.sqrt(squared) - spheres
     rel, t = relative_pose(matrix(rotations, a), matrix(rotations, b), d)
     status, overlap, _ = separating_axis_test(rel, t, ea, eb, tie, max(enough, 0.0) + tie)
     if status == COLLIDING:
         return 0.0
     if status == SEPARATED or not exact:
-        return -overlap - tie
+        return max(gap, -overlap - tie)
     return box_distance(rel, t, ea, eb)[0] - tie
