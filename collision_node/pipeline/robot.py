@@ -507,8 +507,13 @@ def link_transforms(model, base_pose, q, rotations, translations):
         if kind != FIXED:
             value = model.multipliers[link] * q[model.q_indices[link]] + model.offsets[link]
         ax, ay, az = model.axes[link, 0], model.axes[link, 1], model.axes[link, 2]
-        c, s = math.cos(value), math.sin(value)
-        t = 1.0 - c
+        if kind == REVOLUTE:
+            # Rodrigues: R = c I + s [a]x + (1 - c) a a^T, formed once for the three rows.
+            c, s = math.cos(value), math.sin(value)
+            t = 1.0 - c
+            m00, m01, m02 = c + t * ax * ax, t * ax * ay - s * az, t * ax * az + s * ay
+            m10, m11, m12 = t * ax * ay + s * az, c + t * ay * ay, t * ay * az - s * ax
+            m20, m21, m22 = t * ax * az - s * ay, t * ay * az + s * ax, c + t * az * az
         for i in range(3):
             # Row i of the joint's frame before its motion: parent * origin.
             j0 = rotations[parent, i, 0] * model.origin_rotations[link, 0, 0] \
@@ -528,13 +533,9 @@ def link_transforms(model, base_pose, q, rotations, translations):
                 shift += value * (j0 * ax + j1 * ay + j2 * az)
             translations[link, i] = shift
             if kind == REVOLUTE:
-                # Rodrigues: R = c I + s [a]x + (1 - c) a a^T.
-                rotations[link, i, 0] = j0 * (c + t * ax * ax) + j1 * (t * ax * ay + s * az) \
-                    + j2 * (t * ax * az - s * ay)
-                rotations[link, i, 1] = j0 * (t * ax * ay - s * az) + j1 * (c + t * ay * ay) \
-                    + j2 * (t * ay * az + s * ax)
-                rotations[link, i, 2] = j0 * (t * ax * az + s * ay) \
-                    + j1 * (t * ay * az - s * ax) + j2 * (c + t * az * az)
+                rotations[link, i, 0] = j0 * m00 + j1 * m10 + j2 * m20
+                rotations[link, i, 1] = j0 * m01 + j1 * m11 + j2 * m21
+                rotations[link, i, 2] = j0 * m02 + j1 * m12 + j2 * m22
             else:
                 rotations[link, i, 0], rotations[link, i, 1], rotations[link, i, 2] = j0, j1, j2
 
