@@ -224,8 +224,8 @@ def test_pose_count_changes_every_tick_in_every_broad_phase(harness):
             if count > MAX_BODIES:
                 rejected += 1
                 status = room.status(lambda s: values(s)['rejected_inputs'] == str(rejected))
-                assert values(status)['last_rejection'] == '%d poses exceed max_bodies %d' % (
-                    count, MAX_BODIES)
+                assert values(status)['last_rejection'] == (
+                    'dynamic_poses: %d poses exceed max_bodies %d' % (count, MAX_BODIES))
                 continue
             check_contacts(room.answer(sec), reference(poses))
             assert not room.clouds
@@ -245,7 +245,8 @@ def test_one_size_per_body_fits_only_its_body_count(harness):
             rejected += 1
             status = room.status(lambda s: values(s)['rejected_inputs'] == str(rejected))
             assert values(status)['last_rejection'] == (
-                'dynamic.half_extents sizes 4 bodies, the input has %d poses' % count)
+                'dynamic_poses: dynamic.half_extents sizes 4 bodies, the input has %d poses'
+                % count)
         else:
             check_contacts(room.answer(sec), reference(poses))
         assert not room.clouds
