@@ -4,6 +4,10 @@ A pose is ``x y z qx qy qz qw`` (ROS order). Each box is stored as a center (3,)
 matrix (3, 3) whose columns are the box axes in world coordinates, half extents (3,), an
 axis-aligned bounding box (2, 3) = (min corner, max corner) and the radius of its bounding
 sphere. Everything is float64.
+
+The rules of a valid box, margin and tolerance are written here once (:func:`check_boxes`,
+:func:`check_margin`, :func:`check_tolerance`): the World, the static scene and the node's
+parameters call them, so each refuses exactly what the others refuse.
 """
 import math
 from typing import NamedTuple
