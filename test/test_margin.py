@@ -195,7 +195,7 @@ def test_distance_statistics():
 
 
 def test_the_margin_and_tolerance_rules_are_written_once():
-    """obb's checks, which the World, the static scene and the node's parameters call."""
+    """The checks of obb, which the World, the static scene and the node's parameters call."""
     assert check_margin(0.0) == 0.0 and check_margin(MAX_COORDINATE) == MAX_COORDINATE
     np.testing.assert_array_equal(check_margin([0.1, 0.2]), [0.1, 0.2])
     for bad in (-0.1, float('nan'), float('inf'), 2 * MAX_COORDINATE):
