@@ -153,6 +153,8 @@ def test_each_field_is_set_by_one_table_row():
                                     - {'colliders', 'next_static_id'})
     assert params.PARAMETERS['check_states.bodies'].field == 'state_bodies'
     assert params.PARAMETERS['diagnostic_updater.period'].field == 'diagnostic_period_s'
+    assert [name for name, spec in params.PARAMETERS.items()  # its names make the colliders
+            if spec.run_time and not spec.field] == ['static_colliders']
     assert sorted(spec.field for spec in params.COLLIDER_PARAMETERS.values()) == sorted(
         set(params.Collider._fields) - {'name', 'static_id'})
 

@@ -414,12 +414,12 @@ def run_time_change(parameters, name, value, block_value=None):
         if name.split('.')[0] in RCLPY_PARAMETER_GROUPS:
             return parameters  # rclpy's business
         raise ParameterError(name, 'undeclared: collision_node has no such parameter')
-    if name == 'static_colliders':
-        return _with_colliders(parameters, _checked(name, STRING_ARRAY, value),
-                               block_value or (lambda _: None))
     if not spec.run_time:
         raise ParameterError(name, 'fixed at start, read-only while configured: set it while the '
                                    'node is unconfigured (lifecycle cleanup), or restart it')
+    if not spec.field:  # static_colliders: the names make the colliders, with their blocks
+        return _with_colliders(parameters, _checked(name, STRING_ARRAY, value),
+                               block_value or (lambda _: None))
     changed = parameters._replace(**{
         spec.field: spec.check(name, _checked(name, spec.value_type, value))})
     if changed.ignored_pairs is not parameters.ignored_pairs:  # new entries name colliders
