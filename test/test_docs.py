@@ -3,7 +3,7 @@
 README.md is the front door (at most README_MAX_LINES lines, with a Limitations section); the
 pages of doc/ hold the rest. Neither refers to anything outside the repository, names a
 commit, or links to a file or heading that does not exist, and both source papers are cited
-by their titles.
+by their titles. The code map is one, in doc/design.md, and names every module.
 """
 import pathlib
 import re
@@ -58,6 +58,19 @@ def test_readme_is_short_and_says_what_it_cannot_do():
     lines = README.read_text().splitlines()
     assert len(lines) <= README_MAX_LINES, 'README.md has %d lines' % len(lines)
     assert re.search(r'^## Limitations$', README.read_text(), re.MULTILINE)
+
+
+def test_one_code_map_names_every_module():
+    design = (DOC / 'design.md').read_text()
+    start = design.index('\n## Code map\n')
+    end = design.find('\n## ', start + 1)
+    code_map = design[start:end if end > 0 else len(design)]
+    package = REPO / 'collision_node'
+    modules = [path.relative_to(package).as_posix() for path in sorted(package.glob('*/**/*.py'))]
+    assert [name for name in modules if '`%s`' % name not in code_map] == []
+    readme = README.read_text()
+    assert '(doc/design.md#code-map)' in readme
+    assert 'pipeline/obb.py' not in readme, 'the README links to the code map, not a copy of it'
 
 
 def test_doc_has_pages_each_saying_what_it_answers():

@@ -81,9 +81,11 @@ def test_autostart_false_waits_until_configure_and_activate(harness):
     assert room.peer.count_publishers('collisions') == 0
     assert room.poses.get_subscription_count() == 0
     assert room.node._world is None
+    declared = set(vars(room.node))
 
     assert room.lifecycle.change(CONFIGURE)
     assert room.lifecycle.state() == 'inactive'
+    assert set(vars(room.node)) == declared  # configure makes what __init__ declared, no more
     room.wait_connected()
     poses = room_poses()
     room.publish(poses, sec=1)  # configured but not active: counted, not answered
@@ -145,13 +147,17 @@ def test_cleanup_releases_the_world_and_configure_reads_the_parameters_again(har
     room.wait_for(lambda: room.peer.count_publishers('collisions') == 0
                   and room.poses.get_subscription_count() == 0, 'the endpoints to go')
     assert room.node._world is None
+    made = ('_subscription', '_collisions_publisher', '_markers_publisher', '_states_publisher',
+            '_trajectory_publisher', '_cloud_writer', '_states_writer', '_marker_writer',
+            '_tick_timer', '_pending', '_last_sequence')
+    assert [name for name in made if getattr(room.node, name) is not None] == []
     # Unconfigured, a start-only parameter may be set; configure checks and applies it.
     assert all(result.successful for result in set_parameters(room, max_bodies=4))
     assert room.lifecycle.change(CONFIGURE) and room.lifecycle.change(ACTIVATE)
     room.wait_connected()
     room.publish(poses, sec=2)
     status = room.status(lambda s: values(s)['rejected_inputs'] == '1')
-    assert values(status)['last_rejection'] == '5 poses exceed max_bodies 4'
+    assert values(status)['last_rejection'] == 'dynamic_poses: 5 poses exceed max_bodies 4'
     four = room_poses(POSITIONS[:4])
     room.publish(four, sec=3)
     check_room_contacts(room.answer(3), EXPECTED[:3], four)

@@ -11,6 +11,8 @@ import pytest
 
 from collision_node import DYNAMIC, STATIC, World
 from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.obb import (check_margin, check_tolerance, InvalidDistance,
+                                         MAX_COORDINATE)
 from collision_node.pipeline.scenes import uniform
 
 MARGIN = 0.05
@@ -190,6 +192,22 @@ def test_distance_statistics():
     assert stats['min_distance'] == distance[closest]
     assert stats['min_distance_pair'] == tuple(int(result.contacts[closest][k]) for k in (
         'id_a', 'type_a', 'id_b', 'type_b'))
+
+
+def test_the_margin_and_tolerance_rules_are_written_once():
+    """The checks of obb, which the World, the static scene and the node's parameters call."""
+    assert check_margin(0.0) == 0.0 and check_margin(MAX_COORDINATE) == MAX_COORDINATE
+    np.testing.assert_array_equal(check_margin([0.1, 0.2]), [0.1, 0.2])
+    for bad in (-0.1, float('nan'), float('inf'), 2 * MAX_COORDINATE):
+        with pytest.raises(InvalidDistance, match=r'margin must be a distance in \[0'):
+            check_margin(bad)
+    with pytest.raises(InvalidDistance) as raised:
+        check_margin([0.1, float('nan'), -1.0])
+    assert raised.value.index == 1 and raised.value.problem.endswith('got nan')
+    assert check_tolerance(1e-4) == 1e-4
+    for bad in (0.0, -1e-4, float('nan')):
+        with pytest.raises(InvalidDistance, match=r'tolerance must be a distance in \(0'):
+            check_tolerance(bad)
 
 
 @pytest.mark.parametrize('value', [-0.1, float('nan'), float('inf')])

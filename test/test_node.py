@@ -74,12 +74,12 @@ def test_rejected_input_is_reported_and_not_answered(harness, case):
     overrides, frame_id, reason = {}, 'world', None
     if case == 'NaN pose':
         poses[3, 1] = np.nan
-        reason = 'dynamic body 3: pose has a NaN'
+        reason = 'dynamic_poses: body 3: pose has a NaN'
     elif case == 'bad quaternion':
         poses[2, 3:] = 0.0
-        reason = 'dynamic body 2: quaternion'
+        reason = 'dynamic_poses: body 2: quaternion'
     elif case == 'other frame':
-        frame_id, reason = 'map', "input frame_id 'map'"
+        frame_id, reason = 'map', "dynamic_poses: frame_id 'map'"
     elif case == 'too many':
         overrides, reason = {'max_bodies': 4}, '5 poses exceed max_bodies 4'
     elif case == 'sizes for other count':
@@ -239,7 +239,7 @@ def test_only_rejected_inputs_is_an_error_that_says_why(harness):
     status = room.status(lambda s: s.level == DiagnosticStatus.ERROR)
     silent_s, reason = status.message.split(' s; ')
     assert silent_s.startswith('no valid input for ')
-    assert reason == '1 inputs rejected, last: dynamic body 1: pose has a NaN or Inf value'
+    assert reason == '1 inputs rejected, last: dynamic_poses: body 1: pose has a NaN or Inf value'
 
 
 def test_markers_only_while_subscribed(harness):

@@ -79,17 +79,19 @@ def test_name_version_and_license_agree(manifest, distribution):
     assert manifest.findtext('name') == distribution.metadata.name == PACKAGE
     assert manifest.findtext('version') == distribution.metadata.version
     assert manifest.findtext('license') == distribution.metadata.license
+    with open(os.path.join(REPO, 'LICENSE')) as license_text:  # the text package.xml promises
+        assert 'Apache License\n                           Version 2.0' in license_text.read()
     maintainer = manifest.find('maintainer')
     assert maintainer.text.strip() == distribution.metadata.maintainer
     assert maintainer.get('email') == distribution.metadata.maintainer_email
     assert manifest.find('export').findtext('build_type') == 'ament_python'
 
 
-def test_data_files_install_the_index_marker_manifest_and_config(distribution):
+def test_data_files_install_the_index_marker_manifest_license_and_config(distribution):
     data_files = dict(distribution.data_files)
     assert data_files['share/ament_index/resource_index/packages'] == ['resource/' + PACKAGE]
     assert os.path.isfile(os.path.join(REPO, 'resource', PACKAGE))
-    assert data_files['share/' + PACKAGE] == ['package.xml']
+    assert data_files['share/' + PACKAGE] == ['package.xml', 'LICENSE']
     assert 'config/default.yaml' in data_files['share/%s/config' % PACKAGE]
 
 

@@ -146,6 +146,19 @@ def test_bad_parameter_is_named(case):
     assert words in str(raised.value)
 
 
+def test_each_field_is_set_by_one_table_row():
+    """The table says which field a parameter sets; no name is turned into a field name."""
+    fields = [spec.field for spec in params.PARAMETERS.values() if spec.field]
+    assert sorted(fields) == sorted(set(params.Parameters._fields)
+                                    - {'colliders', 'next_static_id'})
+    assert params.PARAMETERS['check_states.bodies'].field == 'state_bodies'
+    assert params.PARAMETERS['diagnostic_updater.period'].field == 'diagnostic_period_s'
+    assert [name for name, spec in params.PARAMETERS.items()  # its names make the colliders
+            if spec.run_time and not spec.field] == ['static_colliders']
+    assert sorted(spec.field for spec in params.COLLIDER_PARAMETERS.values()) == sorted(
+        set(params.Collider._fields) - {'name', 'static_id'})
+
+
 def test_unknown_parameters_are_the_names_no_one_reads():
     given = ['frame_id', 'dynamic.half_extent', 'table.pose', 'tabel.pose', 'shelf.enabled',
              'qos_overrides./dynamic_poses.subscription.depth', 'use_sim_time',
@@ -284,7 +297,8 @@ def test_half_extents_file(tmp_path):
     np.save(tmp_path / 'flat.npy', sizes.ravel())
     np.save(tmp_path / 'objects.npy', np.array([{'a': 1}], dtype=object), allow_pickle=True)
     (tmp_path / 'text.npy').write_text('0.1 0.1 0.1')
-    for name, words in (('negative.npy', 'value 22 is -1.0'), ('flat.npy', r'shape \(3000,\)'),
+    for name, words in (('negative.npy', r'row 7: half extents must be finite, >= 0.*-1\.0'),
+                        ('flat.npy', r'shape \(3000,\)'),
                         ('objects.npy', 'cannot read'), ('text.npy', 'cannot read'),
                         ('missing.npy', 'cannot read')):
         with pytest.raises(ParameterError, match=words) as raised:

@@ -139,7 +139,8 @@ def test_extreme_finite_coordinates_never_stop_the_node(harness):
         room.statuses.clear()
         room.poses.publish(serialize_pose_array(3 * sec, 0, 'world', extreme))
         status = room.status(lambda s: int(values(s)['rejected_inputs']) == sec + 1)
-        assert values(status)['last_rejection'].startswith('dynamic body 3: position beyond')
+        assert values(status)['last_rejection'].startswith(
+            'dynamic_poses: body 3: position beyond')
         room.publish(far, sec=3 * sec + 1)
         check_room_contacts(room.answer(3 * sec + 1), EXPECTED[:3], far)  # far ones touch nothing
         room.publish(good, sec=3 * sec + 2)
@@ -150,13 +151,13 @@ def test_extreme_finite_coordinates_never_stop_the_node(harness):
 # Each bad pose: (body, column, value), and words of the reason; test_node covers a NaN
 # position and the zero quaternion.
 BAD_POSES = [
-    ((1, 0, np.inf), 'dynamic body 1: pose has a NaN or Inf value'),
-    ((4, 2, -np.inf), 'dynamic body 4: pose has a NaN or Inf value'),
-    ((0, 5, np.nan), 'dynamic body 0: pose has a NaN or Inf value'),
-    ((2, 6, np.inf), 'dynamic body 2: pose has a NaN or Inf value'),
-    ((3, 6, 1.01), 'dynamic body 3: quaternion norm is not within'),
-    ((3, 6, 1e-200), 'dynamic body 3: quaternion norm is not within'),
-    ((1, 4, 1e200), 'dynamic body 1: quaternion norm is not within'),  # squares overflow
+    ((1, 0, np.inf), 'dynamic_poses: body 1: pose has a NaN or Inf value'),
+    ((4, 2, -np.inf), 'dynamic_poses: body 4: pose has a NaN or Inf value'),
+    ((0, 5, np.nan), 'dynamic_poses: body 0: pose has a NaN or Inf value'),
+    ((2, 6, np.inf), 'dynamic_poses: body 2: pose has a NaN or Inf value'),
+    ((3, 6, 1.01), 'dynamic_poses: body 3: quaternion norm is not within'),
+    ((3, 6, 1e-200), 'dynamic_poses: body 3: quaternion norm is not within'),
+    ((1, 4, 1e200), 'dynamic_poses: body 1: quaternion norm is not within'),  # squares overflow
 ]
 
 
@@ -223,8 +224,8 @@ def test_pose_count_changes_every_tick_in_every_broad_phase(harness):
             if count > MAX_BODIES:
                 rejected += 1
                 status = room.status(lambda s: values(s)['rejected_inputs'] == str(rejected))
-                assert values(status)['last_rejection'] == '%d poses exceed max_bodies %d' % (
-                    count, MAX_BODIES)
+                assert values(status)['last_rejection'] == (
+                    'dynamic_poses: %d poses exceed max_bodies %d' % (count, MAX_BODIES))
                 continue
             check_contacts(room.answer(sec), reference(poses))
             assert not room.clouds
@@ -244,7 +245,8 @@ def test_one_size_per_body_fits_only_its_body_count(harness):
             rejected += 1
             status = room.status(lambda s: values(s)['rejected_inputs'] == str(rejected))
             assert values(status)['last_rejection'] == (
-                'dynamic.half_extents sizes 4 bodies, the input has %d poses' % count)
+                'dynamic_poses: dynamic.half_extents sizes 4 bodies, the input has %d poses'
+                % count)
         else:
             check_contacts(room.answer(sec), reference(poses))
         assert not room.clouds

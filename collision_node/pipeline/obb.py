@@ -4,6 +4,10 @@ A pose is ``x y z qx qy qz qw`` (ROS order). Each box is stored as a center (3,)
 matrix (3, 3) whose columns are the box axes in world coordinates, half extents (3,), an
 axis-aligned bounding box (2, 3) = (min corner, max corner) and the radius of its bounding
 sphere. Everything is float64.
+
+The rules of a valid box, margin and tolerance are written here once (:func:`check_boxes`,
+:func:`check_margin`, :func:`check_tolerance`): the World, the static scene and the node's
+parameters call them, so each refuses exactly what the others refuse.
 """
 import math
 from typing import NamedTuple
@@ -41,8 +45,8 @@ BAD_HALF_EXTENTS = 3
 OUT_OF_RANGE = 4
 REASONS = {
     NON_FINITE_POSE: 'pose has a NaN or Inf value',
-    BAD_QUATERNION: 'quaternion norm is not within %g of 1 (zero or not a rotation)'
-                    % QUATERNION_NORM_TOLERANCE,
+    BAD_QUATERNION: 'quaternion norm is not within %g of 1: not a unit quaternion (zero or not '
+                    'a rotation)' % QUATERNION_NORM_TOLERANCE,
     BAD_HALF_EXTENTS: 'half extents must be finite, >= 0 and <= %g m' % MAX_COORDINATE,
     OUT_OF_RANGE: 'position beyond +-%g m' % MAX_COORDINATE,
 }
@@ -55,6 +59,19 @@ class InvalidBox(ValueError):
         super().__init__('body %d: %s' % (body, reason))
         self.body = body
         self.reason = reason
+
+
+class InvalidDistance(ValueError):
+    """A margin or tolerance :func:`check_margin` or :func:`check_tolerance` refuses.
+
+    ``index`` is the first bad value's in the input, flattened (0 for a number); ``problem``
+    says what is wrong without naming the setting, for a caller that names it its own way.
+    """
+
+    def __init__(self, what, index, problem):
+        super().__init__('%s %s' % (what, problem))
+        self.index = index
+        self.problem = problem
 
 
 class _BoxArrays(NamedTuple):
@@ -120,6 +137,35 @@ def check_boxes(poses, half_extents):
     if bad >= 0:
         raise InvalidBox(bad, REASONS[code])
     return poses, half_extents
+
+
+def check_margin(value, what='margin'):
+    """Return a margin in metres, a number or an array of them, as float64.
+
+    A margin pads every box it applies to, so it has a box's bound: in [0, MAX_COORDINATE].
+    Raises InvalidDistance naming ``what`` and the first value out of range (NaN included).
+    """
+    return _checked_distance(value, what, positive=False)
+
+
+def check_tolerance(value, what='continuous tolerance'):
+    """Return a tolerance in metres, a number or an array of them, as float64.
+
+    A tolerance ends a search when the boxes are that close, so it must be more than 0 (a
+    search to 0 would not end) and at most MAX_COORDINATE. Raises InvalidDistance as
+    :func:`check_margin` does.
+    """
+    return _checked_distance(value, what, positive=True)
+
+
+def _checked_distance(value, what, positive):
+    values = np.asarray(value, dtype=np.float64)
+    above_low = values > 0.0 if positive else values >= 0.0
+    bad = np.flatnonzero(~(above_low & (values <= MAX_COORDINATE)))  # NaN is never in range
+    if len(bad):
+        raise InvalidDistance(what, int(bad[0]), 'must be a distance in %s0, %g] m, got %r' % (
+            '(' if positive else '[', MAX_COORDINATE, float(values.flat[bad[0]])))
+    return float(values) if values.ndim == 0 else values
 
 
 def _as_inputs(poses, half_extents):

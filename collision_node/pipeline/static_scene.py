@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from collision_node.pipeline.filters import ALL_CATEGORIES, collision_bits, DEFAULT_CATEGORY
-from collision_node.pipeline.obb import check_boxes, InvalidBox, MAX_COORDINATE
+from collision_node.pipeline.obb import check_boxes, check_margin, InvalidBox, InvalidDistance
 
 # The ids fit the cloud's UINT32 id fields.
 MAX_STATIC_ID = 2**32 - 1
@@ -242,10 +242,10 @@ def _check_boxes(ids, poses, half_extents):
 
 def _checked_settings(count, ids, margins, categories, masks):
     margins = _per_collider('margins', np.asarray(margins, np.float64), count)
-    bad = ~((margins >= 0.0) & (margins <= MAX_COORDINATE))  # also NaN
-    if bad.any():
-        raise ValueError('static id %d: margin must be in [0, %g] m, got %r'
-                         % (ids[np.argmax(bad)], MAX_COORDINATE, margins[np.argmax(bad)]))
+    try:
+        check_margin(margins)
+    except InvalidDistance as error:
+        raise ValueError('static id %d: %s' % (ids[error.index], error)) from None
     return (margins, _per_collider('categories', collision_bits('static categories', categories),
                                    count),
             _per_collider('masks', collision_bits('static masks', masks), count))

@@ -11,7 +11,13 @@ and creates the endpoints; activate opens the gate every input callback goes thr
 endpoints. ``autostart`` (the default) configures and activates in the constructor. A new input
 topic is one line in :meth:`CollisionNode._configure`, ``self._create_input(type, topic,
 callback)``, and a new output one ``self._create_output(type, topic)``: both then follow the
-lifecycle.
+lifecycle. Every attribute is declared in ``__init__``; what configure makes, cleanup sets back
+to None (the ros2/demos lifecycle talker's pattern).
+
+Inputs. Every pose topic's message is read and checked by one function, :func:`_read_poses`
+(the CDR parse, the frame, the size: max_bodies and the topic's own rule on its count); every
+refused input, on any topic, is one of REFUSALS and is reported by ``_reject`` as
+``<topic>: <reason>``, with no answer.
 
 Ticks. ``tick_rate_hz`` 0: each input is checked in the subscription callback. ``> 0``: the
 callback only keeps the newest input and a timer checks it; a timer tick without a new input
@@ -50,6 +56,7 @@ import functools
 import math
 import threading
 import time
+from typing import Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray
@@ -57,10 +64,11 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
-from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.subscription import Subscription
 from rclpy.task import Future
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import Header, String
@@ -76,8 +84,8 @@ from collision_node.pipeline.static_scene import InvalidCollider
 from collision_node.pipeline.warm_up import warm_up
 from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
-from collision_node.ros.cdr import CdrError, parse_pose_array
-from collision_node.ros.joints import JointInputError, JointValues
+from collision_node.ros.cdr import parse_pose_array
+from collision_node.ros.joints import JointValues
 from collision_node.ros.lifetime import InitError, RosProgram
 from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.memory import keep_heap_memory
@@ -131,6 +139,16 @@ class InputError(ValueError):
     """An input message the node refuses; the text is the reason in the diagnostics."""
 
 
+# What refuses an input, on every topic. ValueError: a message that does not parse (CdrError),
+# is in another frame or of another size (InputError), holds bad joint values
+# (JointInputError), or a body the World refuses (it names the first one: the whole message
+# is refused rather than that body left out, which would report it as free). ArithmeticError
+# and RuntimeError: finite values near the float64 limit (|x| ~ 1e308, e.g. a flipped exponent
+# bit) overflow inside a broad phase or the SAT; one refused input costs less than the node,
+# and the World's next step starts afresh from its input.
+REFUSALS = (ValueError, ArithmeticError, RuntimeError)
+
+
 class CollisionNode(LifecycleNode):
     """Checks the dynamic boxes of each PoseArray against each other and the static colliders."""
 
@@ -157,9 +175,22 @@ class CollisionNode(LifecycleNode):
         self._autostarting = False
         self._configure_error = None  # why the last configure failed
         self._file_colliders = []  # names configure added to static_colliders (the scene file)
-        # Made by configure, destroyed by cleanup: _create_input's and _create_output's.
+        # Made by configure, set back to None (destroyed) by cleanup, as in the ros2/demos
+        # lifecycle talker. Every endpoint is in _inputs or _outputs, for cleanup to destroy;
+        # the named ones are those a callback uses.
         self._inputs, self._outputs = [], []
-        self._tick_timer = None
+        self._subscription: Optional[Subscription] = None  # dynamic_poses: its publisher count
+        self._collisions_publisher: Optional[LifecyclePublisher] = None
+        self._markers_publisher: Optional[LifecyclePublisher] = None
+        self._states_publisher: Optional[LifecyclePublisher] = None
+        self._trajectory_publisher: Optional[LifecyclePublisher] = None
+        self._cloud_writer: Optional[CloudWriter] = None   # collisions
+        self._states_writer: Optional[CloudWriter] = None  # state and trajectory collisions
+        self._marker_writer: Optional[MarkerWriter] = None
+        self._tick_timer = None  # checks the newest input, when tick_rate_hz > 0
+        self._pending = None  # the newest unchecked input, in timer mode
+        self._last_sequence = None  # the publication sequence number of the last input
+        self._next_markers_s = -math.inf  # monotonic s: no markers are built before
         self._scene_version = 0  # counts the accepted changes of the colliders (diagnostics)
         # The robot (doc/robot.md, "Through ROS"): its model while one is loaded, the XML it was
         # built from (topic name: text), and its joint values from joint_states.
@@ -268,9 +299,6 @@ class CollisionNode(LifecycleNode):
             self._load_robot(robot)
         self._trajectory_publisher = self._create_output(PointCloud2, 'trajectory_collisions',
                                                          REQUEST_QOS)
-        self._next_markers_s = -math.inf  # monotonic s
-        self._last_sequence = None
-        self._pending = None  # newest unchecked input, in timer mode
         if config.tick_rate_hz > 0.0:
             self._tick_timer = self.create_timer(1.0 / config.tick_rate_hz,
                                                  self._gated(self._on_tick_timer, lambda: None))
@@ -278,10 +306,8 @@ class CollisionNode(LifecycleNode):
         # Last, after the warm-up: no input is taken before the node can answer it in time.
         self._subscription = self._create_input(PoseArray, 'dynamic_poses', self._on_input,
                                                 self._ignore_input)
-        self._static_subscription = self._create_input(PoseArray, 'static_poses',
-                                                       self._on_static_poses, scene=True)
-        self._states_subscription = self._create_input(PoseArray, 'check_states',
-                                                       self._on_check_states, qos=REQUEST_QOS)
+        self._create_input(PoseArray, 'static_poses', self._on_static_poses, scene=True)
+        self._create_input(PoseArray, 'check_states', self._on_check_states, qos=REQUEST_QOS)
         # The robot: a model topic only when its parameter is empty; models and joint values
         # are kept while inactive too (scene inputs), only answers wait for the activate.
         for topic, callback in zip(MODEL_TOPICS, (self._on_robot_description,
@@ -346,7 +372,7 @@ class CollisionNode(LifecycleNode):
         self._active = False
         if self._tick_timer is not None:
             self._tick_timer.cancel()
-        if getattr(self, '_pending', None) is not None:
+        if self._pending is not None:
             self._pending = None
             self._monitor.ignored()
         self._monitor.lifecycle(time.monotonic(), state)
@@ -362,7 +388,11 @@ class CollisionNode(LifecycleNode):
                 self.destroy_lifecycle_publisher(self._outputs.pop())
             if self._tick_timer is not None:
                 self.destroy_timer(self._tick_timer)
-                self._tick_timer = None
+            self._subscription = self._tick_timer = None
+            self._collisions_publisher = self._markers_publisher = None
+            self._states_publisher = self._trajectory_publisher = None
+            self._cloud_writer = self._states_writer = self._marker_writer = None
+            self._pending, self._last_sequence, self._next_markers_s = None, None, -math.inf
             with self._world_lock:
                 world, self._world, self._config = self._world, None, None
                 self._robot, self._joints = None, None
@@ -476,27 +506,14 @@ class CollisionNode(LifecycleNode):
         start = time.perf_counter()
         try:
             if self._robot is not None:
-                raise InputError('dynamic_poses: refused while a robot model is loaded: its '
-                                 'boxes are the dynamic bodies (publish joint_states)')
-            message = parse_pose_array(buffer)
-            self._check_input(message, config)
+                raise InputError('refused while a robot model is loaded: its boxes are the '
+                                 'dynamic bodies (publish joint_states)')
+            message = _read_poses(buffer, config, _dynamic_count_problem)
             checked = time.perf_counter()
             with self._world_lock:
                 result = self._world.step(message.poses, config.dynamic_half_extents)
-        except (CdrError, InputError) as error:
-            self._reject(str(error))
-            return
-        except ValueError as error:
-            # The World names the first invalid body. The whole message is refused rather than
-            # that body left out: a partial answer would silently report it as free.
-            self._reject('dynamic %s' % error)
-            return
-        except (ArithmeticError, RuntimeError) as error:
-            # Finite poses near the float64 limit (|x| ~ 1e308, e.g. a flipped exponent bit)
-            # overflow inside a broad phase or the SAT. One refused input costs less than
-            # the node; the World's next step starts afresh from its input.
-            self._reject('dynamic poses the World cannot check (%s: %s)'
-                         % (type(error).__name__, error))
+        except REFUSALS as error:
+            self._reject('dynamic_poses', error)
             return
         self._publish_tick(start, checked, result, message.sec, message.nanosec, message.poses,
                            config.dynamic_half_extents)
@@ -548,19 +565,6 @@ class CollisionNode(LifecycleNode):
         self._release()
         super().destroy_node()
 
-    @staticmethod
-    def _check_input(message, config):
-        if message.frame_id and message.frame_id != config.frame_id:
-            raise InputError("input frame_id '%s' is not the node's frame_id '%s'"
-                             % (message.frame_id, config.frame_id))
-        count = len(message.poses)
-        if count > config.max_bodies:
-            raise InputError('%d poses exceed max_bodies %d' % (count, config.max_bodies))
-        extents = config.dynamic_half_extents
-        if extents.ndim == 2 and len(extents) != count:
-            raise InputError('dynamic.half_extents sizes %d bodies, the input has %d poses'
-                             % (len(extents), count))
-
     def _on_check_states(self, buffer):
         """Answer a check_states request: K states of the D bodies, in one state_collisions.
 
@@ -573,16 +577,12 @@ class CollisionNode(LifecycleNode):
             if self._robot is not None:
                 raise InputError('refused while a robot model is loaded: its boxes are the '
                                  'dynamic bodies (send joint-space paths to check_trajectory)')
-            message = parse_pose_array(buffer)
-            states = _states_of(message, config)
-            with self._world_lock:
+            message = _read_poses(buffer, config, _states_count_problem)
+            states = message.poses.reshape(-1, config.state_bodies, 7)
+            with self._world_lock:  # the World names the state and body it refuses
                 result = self._world.check_states(states, config.dynamic_half_extents)
-        except (CdrError, InputError, ValueError) as error:  # the World names state and body
-            self._reject('check_states: %s' % error)
-            return
-        except (ArithmeticError, RuntimeError) as error:
-            self._reject('check_states: states the World cannot check (%s: %s)'
-                         % (type(error).__name__, error))
+        except REFUSALS as error:
+            self._reject('check_states', error)
             return
         self._states_publisher.publish(self._states_writer.serialize(
             result.contacts, message.sec, message.nanosec, config.frame_id))
@@ -658,12 +658,8 @@ class CollisionNode(LifecycleNode):
                     checked = time.perf_counter()
                     poses = self._world.robot_poses(joints.q())[0]
                     result = self._world.step(poses, robot.half_extents)
-        except ValueError as error:  # the World's filters sized for other bodies
-            self._reject('joint_states: %s' % error)
-            return
-        except (ArithmeticError, RuntimeError) as error:
-            self._reject('joint_states: a state the World cannot check (%s: %s)'
-                         % (type(error).__name__, error))
+        except REFUSALS as error:  # ValueError: the World's filters sized for other bodies
+            self._reject('joint_states', error)
             return
         self._monitor.missing_joints(missing)
         if missing:
@@ -685,8 +681,8 @@ class CollisionNode(LifecycleNode):
             return False
         try:
             self._joints.merge(message.name, message.position)
-        except JointInputError as error:
-            self._reject('joint_states: %s' % error)
+        except REFUSALS as error:
+            self._reject('joint_states', error)
             return False
         return True
 
@@ -696,16 +692,13 @@ class CollisionNode(LifecycleNode):
         try:
             with self._world_lock:
                 if self._robot is None:
-                    raise JointInputError('no robot model yet (robot_description)')
+                    raise InputError('no robot model yet (robot_description)')
+                # JointInputError names the waypoint and joint at fault.
                 waypoints = self._joints.waypoints(
                     list(message.joint_names), [point.positions for point in message.points])
                 result = self._world.check_trajectory(waypoints)
-        except ValueError as error:  # JointInputError too: it names the waypoint and joint
-            self._reject('check_trajectory: %s' % error)
-            return
-        except (ArithmeticError, RuntimeError) as error:
-            self._reject('check_trajectory: a path the World cannot check (%s: %s)'
-                         % (type(error).__name__, error))
+        except REFUSALS as error:
+            self._reject('check_trajectory', error)
             return
         stamp = message.header.stamp
         self._trajectory_publisher.publish(self._states_writer.serialize(
@@ -715,31 +708,32 @@ class CollisionNode(LifecycleNode):
     def _on_static_poses(self, buffer):
         """Move the static colliders from the next tick on; refuse an invalid message whole."""
         try:
-            message = parse_pose_array(buffer)
             # Checked against the colliders as they are: a parameter change (maybe from
             # another thread) comes before or after the whole message.
             with self._world_lock:
                 config = self._config
-                if message.frame_id and message.frame_id != config.frame_id:
-                    raise InputError("frame_id '%s' is not the node's frame_id '%s'"
-                                     % (message.frame_id, config.frame_id))
-                if len(message.poses) != len(config.colliders):
-                    raise InputError('%d poses for %d static colliders (one per name in '
-                                     'static_colliders, in its order)'
-                                     % (len(message.poses), len(config.colliders)))
+                message = _read_poses(buffer, config, _static_count_problem, bounded=False)
                 # Disabled colliders are moved (and checked) too: they may be enabled later.
-                if self._world.move_static([c.static_id for c in config.colliders],
-                                           message.poses):
+                try:
+                    moved = self._world.move_static([c.static_id for c in config.colliders],
+                                                    message.poses)
+                except InvalidCollider as error:  # by its name, as the parameters know it
+                    raise InputError('collider %d (%s): %s' % (
+                        error.body, config.colliders[error.body].name, error.reason)) from None
+                if moved:
                     self._scene_version += 1
-        except (CdrError, InputError) as error:
-            self._reject('static_poses: %s' % error)
-        except InvalidCollider as error:
-            self._reject('static_poses: collider %d (%s): %s'
-                         % (error.body, config.colliders[error.body].name, error.reason))
+        except REFUSALS as error:
+            self._reject('static_poses', error)
         else:
             self._monitor.scene(self._scene_version)
 
-    def _reject(self, reason):
+    def _reject(self, topic, error):
+        """Refuse an input of ``topic`` for ``error`` (one of REFUSALS): no answer, a reason."""
+        if isinstance(error, (ArithmeticError, RuntimeError)):
+            reason = '%s: an input the World cannot check (%s: %s)' % (
+                topic, type(error).__name__, error)
+        else:
+            reason = '%s: %s' % (topic, error)
         self._monitor.rejected(reason)
         self.get_logger().warn('input rejected: %s' % reason,
                                throttle_duration_sec=LOG_THROTTLE_S)
@@ -819,21 +813,54 @@ class CollisionNode(LifecycleNode):
             header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
 
 
-def _states_of(message, config):
-    """Return a check_states request's poses as (K, D, 7) states; InputError if refused."""
+def _read_poses(buffer, config, count_problem, bounded=True):
+    """Return the PoseArray of an input, checked as every pose input is; InputError if refused.
+
+    The one input check of the pose topics: the CDR parses (CdrError says why not), the frame
+    is the node's (an empty one counts as the node's), a ``bounded`` input holds at most
+    max_bodies poses, and ``count_problem(count, config)``, the topic's own rule on its pose
+    count, gives no reason to refuse it (None).
+    """
+    message = parse_pose_array(buffer)
     if message.frame_id and message.frame_id != config.frame_id:
         raise InputError("frame_id '%s' is not the node's frame_id '%s'"
                          % (message.frame_id, config.frame_id))
-    count, bodies = len(message.poses), config.state_bodies
-    if count > config.max_bodies:
+    count = len(message.poses)
+    if bounded and count > config.max_bodies:
         raise InputError('%d poses exceed max_bodies %d' % (count, config.max_bodies))
+    problem = count_problem(count, config)
+    if problem:
+        raise InputError(problem)
+    return message
+
+
+def _dynamic_count_problem(count, config):
+    """dynamic_poses: one pose per size, when dynamic.half_extents gives one per body."""
+    extents = config.dynamic_half_extents
+    if extents.ndim == 2 and len(extents) != count:
+        return 'dynamic.half_extents sizes %d bodies, the input has %d poses' % (
+            len(extents), count)
+    return None
+
+
+def _states_count_problem(count, config):
+    """check_states: whole states of check_states.bodies poses each."""
+    bodies = config.state_bodies
     if not bodies:
-        raise InputError('the bodies of a state are not known: dynamic.half_extents gives one '
-                         'size for all; set check_states.bodies')
+        return ('the bodies of a state are not known: dynamic.half_extents gives one size for '
+                'all; set check_states.bodies')
     if count % bodies:
-        raise InputError('%d poses are not whole states of %d bodies (check_states.bodies)'
-                         % (count, bodies))
-    return message.poses.reshape(-1, bodies, 7)
+        return '%d poses are not whole states of %d bodies (check_states.bodies)' % (
+            count, bodies)
+    return None
+
+
+def _static_count_problem(count, config):
+    """static_poses: one pose per collider, its count and not max_bodies its bound."""
+    if count != len(config.colliders):
+        return ('%d poses for %d static colliders (one per name in static_colliders, in its '
+                'order)' % (count, len(config.colliders)))
+    return None
 
 
 def _add_colliders(world, colliders):

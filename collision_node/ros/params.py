@@ -9,11 +9,19 @@ Validation is plain Python on plain values, so tests call it without ROS:
 type when it is made, and reads them back through :func:`parse` at each lifecycle configure
 (doc/lifecycle.md). Every problem raises :class:`ParameterError`, whose text names the parameter
 and says what is wrong with it.
+
+Each row of the table names the field it sets and the check of its value. The rules of a valid
+box, margin, tolerance or broad phase are the pipeline's own (``obb.check_boxes``,
+``obb.check_margin``, ``obb.check_tolerance``, the broad phases' checks): the checks here call
+them and name the parameter in their errors, so the node refuses at a parameter exactly what the
+World would refuse at a step. The rules between parameters (colliders named in ignored_pairs, a
+file that replaces a list, the bodies of a check_states state) are in :func:`parse` and
+:func:`run_time_change`.
 """
 import math
 import re
 import reprlib
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -22,108 +30,19 @@ from collision_node.pipeline.contacts import DYNAMIC, STATIC
 from collision_node.pipeline.continuous import CONTINUOUS_TOLERANCE
 from collision_node.pipeline.filters import (ALL_CATEGORIES, collision_bits, DEFAULT_CATEGORY,
                                              MAX_ID)
-from collision_node.pipeline.obb import MAX_COORDINATE, QUATERNION_NORM_TOLERANCE
+from collision_node.pipeline.obb import (check_boxes, check_margin, check_tolerance, InvalidBox,
+                                         InvalidDistance)
 
 # Type names as in doc/parameters.md; declare() maps them to rclpy's Parameter.Type.
 STRING, BOOL, INTEGER, DOUBLE = 'string', 'bool', 'integer', 'double'
 DOUBLE_ARRAY, STRING_ARRAY, INTEGER_ARRAY = 'double[]', 'string[]', 'integer[]'
-
-
-class Spec(NamedTuple):
-    """One row of the parameter table."""
-
-    value_type: str
-    default: object
-    description: str
-    run_time: bool = False  # may change while the node runs; others only while unconfigured
-
-
-PARAMETERS = {
-    'frame_id': Spec(STRING, 'world', 'frame of all poses; inputs in another frame are rejected'),
-    'broad_phase': Spec(STRING, 'auto', 'one of: ' + ', '.join(NAMES), True),
-    'sphere_prefilter': Spec(BOOL, True, 'bounding-sphere test before the SAT', True),
-    'octree.max_depth': Spec(INTEGER, 0, '0: chosen from the body count; else a fixed depth',
-                             True),
-    'octree.leaf_cooldown_ticks': Spec(INTEGER, 15,
-                                       'ticks an emptied leaf lives before it is dropped', True),
-    'dynamic.half_extents': Spec(DOUBLE_ARRAY, [0.5, 0.5, 0.5],
-                                 'm; 3 values for every dynamic body, or 3 per body'),
-    'dynamic.half_extents_file': Spec(
-        STRING, '', '.npy file of (N, 3) or (3,) half extents in m; replaces '
-                    'dynamic.half_extents'),
-    'dynamic.collision_category': Spec(
-        INTEGER_ARRAY, [DEFAULT_CATEGORY], 'bits; one for every dynamic body, or one per body',
-        True),
-    'dynamic.collision_mask': Spec(
-        INTEGER_ARRAY, [ALL_CATEGORIES], 'bits (-1: all); one for every dynamic body, or one '
-                                         'per body', True),
-    'static_colliders': Spec(STRING_ARRAY, [], 'names of the static boxes, each with a block '
-                                               '<name>.pose, <name>.half_extents, <name>.enabled',
-                             True),
-    'static_scene_file': Spec(STRING, '', '.npz file of named static colliders, listed before '
-                                          'those of static_colliders'),
-    'margin': Spec(DOUBLE, 0.0, 'm; pairs whose exact distance is at most this are reported',
-                   True),
-    'continuous': Spec(BOOL, False, 'check each body over its motion since the previous input, '
-                                    'not only at its pose', True),
-    'continuous_tolerance': Spec(DOUBLE, CONTINUOUS_TOLERANCE,
-                                 'm > 0; at a reported toi the boxes are within margin + this',
-                                 True),
-    'ignored_pairs': Spec(STRING_ARRAY, [], '"A B" entries, A and B each d<i> (dynamic body i) '
-                                            'or a static collider name: never reported', True),
-    'tick_rate_hz': Spec(DOUBLE, 0.0, '0: check every input message; > 0: a timer checks the '
-                                      'newest input at this rate'),
-    'input_timeout_s': Spec(DOUBLE, 1.0, 'no valid input for this long: ERROR diagnostic; '
-                                         '0 disables'),
-    'max_bodies': Spec(INTEGER, 100000, 'inputs with more poses are rejected'),
-    'check_states.bodies': Spec(INTEGER, 0, 'bodies per state in a check_states request; 0: '
-                                            'one per size in dynamic.half_extents (set it when '
-                                            'one size is for all)'),
-    'robot_description': Spec(STRING, '', "URDF XML text of the robot; '': read the "
-                                          'robot_description topic'),
-    'robot_description_semantic': Spec(STRING, '', "SRDF XML text of the robot; '': read the "
-                                                   'robot_description_semantic topic'),
-    'robot_description_package_paths': Spec(
-        STRING_ARRAY, [], 'folders searched for pkg/path when a package://pkg/path mesh is not '
-                          'in the ament index'),
-    'robot_base_pose': Spec(DOUBLE_ARRAY, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
-                            "x y z qx qy qz qw of the robot's root link in frame_id"),
-    'threads': Spec(INTEGER, 1, "threads for the box writes, the grid's pair search, the SAT and "
-                                "the contacts: 1 keeps every tick on the executor's thread; 2+ "
-                                "pay from ~10,000 bodies"),
-    'diagnostic_updater.period': Spec(DOUBLE, 1.0, 's between /diagnostics messages'),
-    'autostart': Spec(BOOL, True, 'configure and activate at start; false: wait unconfigured for '
-                                  'a lifecycle manager'),
-}
-# Read once, by the constructor: rclpy refuses every change (ParameterDescriptor.read_only).
-READ_ONLY = frozenset({'autostart'})
-START_ONLY_CONSTRAINT = 'start-only: set it while the node is unconfigured'
-COLLIDER_PARAMETERS = {  # <name>.<key>; pose and half_extents have no default: they must be given
-    'pose': Spec(DOUBLE_ARRAY, None, 'x y z qx qy qz qw, in frame_id', True),
-    'half_extents': Spec(DOUBLE_ARRAY, None, 'm, 3 values', True),
-    'enabled': Spec(BOOL, True, 'a disabled collider is left out of the checks', True),
-    'margin': Spec(DOUBLE, 0.0, 'm; added to margin for pairs with this collider', True),
-    'collision_category': Spec(INTEGER, DEFAULT_CATEGORY, 'bits', True),
-    'collision_mask': Spec(INTEGER, ALL_CATEGORIES, 'bits (-1: all)', True),
-}
-# A collider name becomes the first part of parameter names, so it must be a plain identifier
-# and must not collide with the node's own parameter groups.
-COLLIDER_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
-DYNAMIC_BODY = re.compile(r'd(-?[0-9]+)\Z')  # d<i> in ignored_pairs; no collider is named so
-RCLPY_PARAMETER_GROUPS = frozenset({'qos_overrides', 'use_sim_time',
-                                    'start_type_description_service'})
-RESERVED_NAMES = frozenset(name.split('.')[0] for name in PARAMETERS) | RCLPY_PARAMETER_GROUPS
 MAX_THREADS = 64  # far more than a collision check can use; a larger value is a typo
 # Above this a timer mostly wakes the executor to find no new input; a faster pose source is
 # better served by tick_rate_hz 0 (a tick on every input).
 MAX_TICK_RATE_HZ = 1000.0
+MAX_COUNT = 2**32 - 1  # a body count: the messages' uint32
 POSE_SIZE = 7
-GIVEN_TYPE = re.compile(r"of type '(\w+)', expecting")  # in rclpy's InvalidParameterTypeException
-WORLD_SETTINGS = {  # parameter name: World keyword, checked by the broad phases' own checks
-    'broad_phase': 'broad_phase',
-    'octree.max_depth': 'octree_max_depth',
-    'octree.leaf_cooldown_ticks': 'octree_leaf_cooldown_ticks',
-}
+IDENTITY_POSE = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
 
 
 class ParameterError(ValueError):
@@ -133,6 +52,236 @@ class ParameterError(ValueError):
         super().__init__("parameter '%s': %s" % (name, problem))
         self.name = name
         self.problem = problem
+
+
+# The checks of the table: check(parameter name, value of the table's type) returns the value
+# of the parameter's field, or raises ParameterError naming the parameter.
+
+def _as_given(name, value):
+    """Return ``value``: the check of a parameter whose type is its only rule."""
+    return value
+
+
+def _frame_id(name, value):
+    if not value or '\x00' in value:
+        raise ParameterError(name, 'must name the frame of the poses (e.g. world), got %r'
+                             % value)
+    return value
+
+
+def _in_range(low, high):
+    """Return the check of a number in [low, high]."""
+    def check(name, value):
+        if not low <= value <= high:  # also refuses NaN
+            raise ParameterError(name, 'must be in [%s, %s], got %r' % (low, high, value))
+        return value
+    return check
+
+
+def _positive(name, value):
+    if not 0.0 < value < math.inf:
+        raise ParameterError(name, 'must be a positive number of seconds, got %r' % value)
+    return value
+
+
+def _margin(name, value):
+    try:
+        return check_margin(value)
+    except InvalidDistance as error:
+        raise ParameterError(name, error.problem) from None
+
+
+def _tolerance(name, value):
+    try:
+        return check_tolerance(value)
+    except InvalidDistance as error:
+        raise ParameterError(name, error.problem) from None
+
+
+def _bits(name, value):
+    if not -2**63 <= value < 2**63:
+        raise ParameterError(name, 'must be a 64-bit integer (bits; -1 sets all), got %r' % value)
+    return value
+
+
+def _bits_list(name, values):
+    if not values:
+        raise ParameterError(name, 'needs one value for every dynamic body, or one per body')
+    return [_bits(name, value) for value in values]
+
+
+def _pose(name, values):
+    """Return ``values`` as a pose (7,): the pose of a valid box (obb.check_boxes)."""
+    if values is None:
+        raise ParameterError(name, 'missing; give x y z qx qy qz qw')
+    if len(values) != POSE_SIZE:
+        raise ParameterError(name, 'needs 7 values x y z qx qy qz qw, got %d' % len(values))
+    pose = np.array(values, dtype=np.float64)
+    try:
+        check_boxes(pose.reshape(1, POSE_SIZE), np.zeros(3))
+    except InvalidBox as error:
+        raise ParameterError(name, '%s; x y z qx qy qz qw = %s' % (error.reason, list(values))) \
+            from None
+    return pose
+
+
+def _collider_half_extents(name, values):
+    if values is None:
+        raise ParameterError(name, 'missing; give 3 half extents in metres')
+    if len(values) != 3:
+        raise ParameterError(name, 'needs 3 values, got %d' % len(values))
+    return _checked_half_extents(name, np.array(values, dtype=np.float64))
+
+
+def _dynamic_half_extents(name, values):
+    if len(values) == 0 or len(values) % 3:
+        raise ParameterError(name, 'needs 3 values (one size for all dynamic bodies) or 3 per '
+                                   'body, got %d' % len(values))
+    extents = np.array(values, dtype=np.float64)
+    return _checked_half_extents(name, extents if len(extents) == 3 else extents.reshape(-1, 3))
+
+
+def _checked_half_extents(name, extents):
+    """Return ``extents``, (3,) or (N, 3), if they are sizes of valid boxes (obb.check_boxes)."""
+    rows = extents.reshape(-1, 3)
+    try:
+        check_boxes(np.tile(IDENTITY_POSE, (len(rows), 1)), rows)
+    except InvalidBox as error:
+        where = 'row %d: ' % error.body if extents.ndim == 2 else ''
+        raise ParameterError(name, '%s%s, got %s' % (where, error.reason,
+                                                     rows[error.body].tolist())) from None
+    return extents
+
+
+def check_world_setting(name, value):
+    """Return ``value`` unless the World would refuse it for the parameter ``name``.
+
+    The broad phases' own checks, without building anything; their error becomes a
+    ParameterError naming the parameter.
+    """
+    try:
+        if name == 'broad_phase':
+            check_broad_phase(value)
+        else:
+            check_settings(Settings(**{PARAMETERS[name].field: value}))
+    except ValueError as error:
+        raise ParameterError(name, str(error)) from None
+    return value
+
+
+class Spec(NamedTuple):
+    """One row of the parameter table."""
+
+    value_type: str
+    default: object
+    description: str
+    run_time: bool = False  # may change while the node runs; others only while unconfigured
+    field: str = ''  # the field of Parameters (Collider) it sets; '': read with another one
+    check: Callable = _as_given  # check(name, value) -> the field's value, or ParameterError
+
+
+PARAMETERS = {
+    'frame_id': Spec(STRING, 'world', 'frame of all poses; inputs in another frame are rejected',
+                     field='frame_id', check=_frame_id),
+    'broad_phase': Spec(STRING, 'auto', 'one of: ' + ', '.join(NAMES), True,
+                        'broad_phase', check_world_setting),
+    'sphere_prefilter': Spec(BOOL, True, 'bounding-sphere test before the SAT', True,
+                             'sphere_prefilter'),
+    'octree.max_depth': Spec(INTEGER, 0, '0: chosen from the body count; else a fixed depth',
+                             True, 'octree_max_depth', check_world_setting),
+    'octree.leaf_cooldown_ticks': Spec(INTEGER, 15,
+                                       'ticks an emptied leaf lives before it is dropped', True,
+                                       'octree_leaf_cooldown_ticks', check_world_setting),
+    'dynamic.half_extents': Spec(DOUBLE_ARRAY, [0.5, 0.5, 0.5],
+                                 'm; 3 values for every dynamic body, or 3 per body',
+                                 field='dynamic_half_extents', check=_dynamic_half_extents),
+    # Its file replaces the list: parse() reads it into dynamic_half_extents.
+    'dynamic.half_extents_file': Spec(
+        STRING, '', '.npy file of (N, 3) or (3,) half extents in m; replaces '
+                    'dynamic.half_extents'),
+    'dynamic.collision_category': Spec(
+        INTEGER_ARRAY, [DEFAULT_CATEGORY], 'bits; one for every dynamic body, or one per body',
+        True, 'dynamic_collision_category', _bits_list),
+    'dynamic.collision_mask': Spec(
+        INTEGER_ARRAY, [ALL_CATEGORIES], 'bits (-1: all); one for every dynamic body, or one '
+                                         'per body', True, 'dynamic_collision_mask', _bits_list),
+    # The names and the scene file make the colliders together: parse(), _with_colliders().
+    'static_colliders': Spec(STRING_ARRAY, [], 'names of the static boxes, each with a block '
+                                               '<name>.pose, <name>.half_extents, <name>.enabled',
+                             True),
+    'static_scene_file': Spec(STRING, '', '.npz file of named static colliders, listed before '
+                                          'those of static_colliders'),
+    'margin': Spec(DOUBLE, 0.0, 'm; pairs whose exact distance is at most this are reported',
+                   True, 'margin', _margin),
+    'continuous': Spec(BOOL, False, 'check each body over its motion since the previous input, '
+                                    'not only at its pose', True, 'continuous'),
+    'continuous_tolerance': Spec(DOUBLE, CONTINUOUS_TOLERANCE,
+                                 'm > 0; at a reported toi the boxes are within margin + this',
+                                 True, 'continuous_tolerance', _tolerance),
+    # Its entries must name colliders: checked with them, by parse() and run_time_change().
+    'ignored_pairs': Spec(STRING_ARRAY, [], '"A B" entries, A and B each d<i> (dynamic body i) '
+                                            'or a static collider name: never reported', True,
+                          'ignored_pairs'),
+    'tick_rate_hz': Spec(DOUBLE, 0.0, '0: check every input message; > 0: a timer checks the '
+                                      'newest input at this rate',
+                         field='tick_rate_hz', check=_in_range(0.0, MAX_TICK_RATE_HZ)),
+    'input_timeout_s': Spec(DOUBLE, 1.0, 'no valid input for this long: ERROR diagnostic; '
+                                         '0 disables',
+                            field='input_timeout_s', check=_in_range(0.0, math.inf)),
+    'max_bodies': Spec(INTEGER, 100000, 'inputs with more poses are rejected',
+                       field='max_bodies', check=_in_range(1, MAX_COUNT)),
+    # Its 0 means one body per size in dynamic.half_extents: parse() fills it in.
+    'check_states.bodies': Spec(INTEGER, 0, 'bodies per state in a check_states request; 0: '
+                                            'one per size in dynamic.half_extents (set it when '
+                                            'one size is for all)',
+                                field='state_bodies', check=_in_range(0, MAX_COUNT)),
+    'robot_description': Spec(STRING, '', "URDF XML text of the robot; '': read the "
+                                          'robot_description topic', field='robot_description'),
+    'robot_description_semantic': Spec(STRING, '', "SRDF XML text of the robot; '': read the "
+                                                   'robot_description_semantic topic',
+                                       field='robot_description_semantic'),
+    'robot_description_package_paths': Spec(
+        STRING_ARRAY, [], 'folders searched for pkg/path when a package://pkg/path mesh is not '
+                          'in the ament index', field='robot_package_paths'),
+    'robot_base_pose': Spec(DOUBLE_ARRAY, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+                            "x y z qx qy qz qw of the robot's root link in frame_id",
+                            field='robot_base_pose', check=_pose),
+    'threads': Spec(INTEGER, 1, "threads for the box writes, the grid's pair search, the SAT and "
+                                "the contacts: 1 keeps every tick on the executor's thread; 2+ "
+                                "pay from ~10,000 bodies",
+                    field='threads', check=_in_range(1, MAX_THREADS)),
+    'diagnostic_updater.period': Spec(DOUBLE, 1.0, 's between /diagnostics messages',
+                                      field='diagnostic_period_s', check=_positive),
+    # Read by the node's constructor, not a field of Parameters.
+    'autostart': Spec(BOOL, True, 'configure and activate at start; false: wait unconfigured for '
+                                  'a lifecycle manager'),
+}
+# Read once, by the constructor: rclpy refuses every change (ParameterDescriptor.read_only).
+READ_ONLY = frozenset({'autostart'})
+START_ONLY_CONSTRAINT = 'start-only: set it while the node is unconfigured'
+# <name>.<key>, each setting the Collider field of its key; pose and half_extents have no
+# default: they must be given.
+COLLIDER_PARAMETERS = {
+    'pose': Spec(DOUBLE_ARRAY, None, 'x y z qx qy qz qw, in frame_id', True, 'pose', _pose),
+    'half_extents': Spec(DOUBLE_ARRAY, None, 'm, 3 values', True, 'half_extents',
+                         _collider_half_extents),
+    'enabled': Spec(BOOL, True, 'a disabled collider is left out of the checks', True,
+                    'enabled'),
+    'margin': Spec(DOUBLE, 0.0, 'm; added to margin for pairs with this collider', True,
+                   'margin', _margin),
+    'collision_category': Spec(INTEGER, DEFAULT_CATEGORY, 'bits', True, 'collision_category',
+                               _bits),
+    'collision_mask': Spec(INTEGER, ALL_CATEGORIES, 'bits (-1: all)', True, 'collision_mask',
+                           _bits),
+}
+# A collider name becomes the first part of parameter names, so it must be a plain identifier
+# and must not collide with the node's own parameter groups.
+COLLIDER_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
+DYNAMIC_BODY = re.compile(r'd(-?[0-9]+)\Z')  # d<i> in ignored_pairs; no collider is named so
+RCLPY_PARAMETER_GROUPS = frozenset({'qos_overrides', 'use_sim_time',
+                                    'start_type_description_service'})
+RESERVED_NAMES = frozenset(name.split('.')[0] for name in PARAMETERS) | RCLPY_PARAMETER_GROUPS
+GIVEN_TYPE = re.compile(r"of type '(\w+)', expecting")  # in rclpy's InvalidParameterTypeException
 
 
 class Collider(NamedTuple):
@@ -199,8 +348,8 @@ def parse(values):
 
     read = {name: _checked(name, spec.value_type, get(name, spec))
             for name, spec in PARAMETERS.items()}
-    for name in WORLD_SETTINGS:
-        check_world_setting(name, read[name])
+    fields = {spec.field: spec.check(name, read[name])
+              for name, spec in PARAMETERS.items() if spec.field}
     colliders = load_static_scene(read['static_scene_file']) if read['static_scene_file'] \
         else []
     names = [c.name for c in colliders] + read['static_colliders']
@@ -209,47 +358,18 @@ def parse(values):
         colliders.append(_collider(name, lambda key, spec: get('%s.%s' % (name, key), spec),
                                    len(colliders)))
     ignored_pair_rows(read['ignored_pairs'], names)  # refuses a malformed entry
-    dynamic_half_extents = _half_extents('dynamic.half_extents', read['dynamic.half_extents'],
-                                         single=False)
     if read['dynamic.half_extents_file']:
-        dynamic_half_extents = load_half_extents(read['dynamic.half_extents_file'])
-    return Parameters(
-        frame_id=_frame_id(read['frame_id']),
-        broad_phase=read['broad_phase'],
-        sphere_prefilter=read['sphere_prefilter'],
-        octree_max_depth=read['octree.max_depth'],
-        octree_leaf_cooldown_ticks=read['octree.leaf_cooldown_ticks'],
-        dynamic_half_extents=dynamic_half_extents,
-        dynamic_collision_category=_bits_list('dynamic.collision_category',
-                                              read['dynamic.collision_category']),
-        dynamic_collision_mask=_bits_list('dynamic.collision_mask',
-                                          read['dynamic.collision_mask']),
-        colliders=tuple(colliders),
-        margin=_margin('margin', read['margin']),
-        continuous=read['continuous'],
-        continuous_tolerance=_tolerance('continuous_tolerance', read['continuous_tolerance']),
-        ignored_pairs=read['ignored_pairs'],
-        tick_rate_hz=_in_range('tick_rate_hz', read['tick_rate_hz'], 0.0, MAX_TICK_RATE_HZ),
-        input_timeout_s=_in_range('input_timeout_s', read['input_timeout_s'], 0.0, math.inf),
-        max_bodies=_in_range('max_bodies', read['max_bodies'], 1, 2**32 - 1),
-        state_bodies=_state_bodies(read['check_states.bodies'], dynamic_half_extents),
-        robot_description=read['robot_description'],
-        robot_description_semantic=read['robot_description_semantic'],
-        robot_package_paths=read['robot_description_package_paths'],
-        robot_base_pose=_pose('robot_base_pose', read['robot_base_pose']),
-        threads=_in_range('threads', read['threads'], 1, MAX_THREADS),
-        diagnostic_period_s=_positive('diagnostic_updater.period',
-                                      read['diagnostic_updater.period']),
-        next_static_id=len(colliders))
+        fields['dynamic_half_extents'] = load_half_extents(read['dynamic.half_extents_file'])
+    fields['state_bodies'] = _state_bodies(fields['state_bodies'],
+                                           fields['dynamic_half_extents'])
+    return Parameters(colliders=tuple(colliders), next_static_id=len(colliders), **fields)
 
 
 def _state_bodies(value, dynamic_half_extents):
     """Return the bodies of a check_states state: ``value``, else one per dynamic size."""
-    name = 'check_states.bodies'
-    _in_range(name, value, 0, 2**32 - 1)
     sizes = len(dynamic_half_extents) if dynamic_half_extents.ndim == 2 else 0
     if value and sizes and value != sizes:
-        raise ParameterError(name, '%d bodies, but dynamic.half_extents sizes %d'
+        raise ParameterError('check_states.bodies', '%d bodies, but dynamic.half_extents sizes %d'
                              % (value, sizes))
     return value or sizes
 
@@ -259,29 +379,13 @@ def _collider(name, value_of, static_id):
 
     Raises ParameterError naming the first invalid value (a missing pose or size included).
     """
-    pose, extents, enabled, margin, category, mask = (  # a missing pose or size stays
-        _checked_or_none('%s.%s' % (name, key), spec.value_type,   # None: _pose() says so
-                         value_of(key, spec))
-        for key, spec in COLLIDER_PARAMETERS.items())
-    return Collider(name, _pose('%s.pose' % name, pose),
-                    _half_extents('%s.half_extents' % name, extents, single=True),
-                    enabled, _margin('%s.margin' % name, margin),
-                    _bits('%s.collision_category' % name, category),
-                    _bits('%s.collision_mask' % name, mask), static_id)
-
-
-def check_world_setting(name, value):
-    """Raise ParameterError unless the World would accept ``value`` for the parameter ``name``.
-
-    The broad phases' own checks, without building anything.
-    """
-    try:
-        if name == 'broad_phase':
-            check_broad_phase(value)
-        else:
-            check_settings(Settings(**{WORLD_SETTINGS[name]: value}))
-    except ValueError as error:
-        raise ParameterError(name, str(error)) from None
+    fields = {}
+    for key, spec in COLLIDER_PARAMETERS.items():
+        parameter = '%s.%s' % (name, key)
+        value = value_of(key, spec)  # a missing pose or size stays None: its check says so
+        fields[spec.field] = spec.check(
+            parameter, None if value is None else _checked(parameter, spec.value_type, value))
+    return Collider(name, static_id=static_id, **fields)
 
 
 def run_time_change(parameters, name, value, block_value=None):
@@ -296,35 +400,31 @@ def run_time_change(parameters, name, value, block_value=None):
     collider, _, key = name.rpartition('.')
     if key in COLLIDER_PARAMETERS and collider and name not in PARAMETERS:
         spec = COLLIDER_PARAMETERS[key]
-        value = _checked(name, spec.value_type, value)
-        value = _COLLIDER_CHECKS.get(key, lambda _, v: v)(name, value)
+        value = spec.check(name, _checked(name, spec.value_type, value))
         names = [c.name for c in parameters.colliders]
         if collider not in names:  # a block for a collider yet to be added
             _check_collider_names([collider])
             return parameters
         index = names.index(collider)
         colliders = list(parameters.colliders)
-        colliders[index] = colliders[index]._replace(**{key: value})
+        colliders[index] = colliders[index]._replace(**{spec.field: value})
         return parameters._replace(colliders=tuple(colliders))
     spec = PARAMETERS.get(name)
     if spec is None:
         if name.split('.')[0] in RCLPY_PARAMETER_GROUPS:
             return parameters  # rclpy's business
         raise ParameterError(name, 'undeclared: collision_node has no such parameter')
-    if name == 'static_colliders':
-        return _with_colliders(parameters, _checked(name, STRING_ARRAY, value),
-                               block_value or (lambda _: None))
     if not spec.run_time:
         raise ParameterError(name, 'fixed at start, read-only while configured: set it while the '
                                    'node is unconfigured (lifecycle cleanup), or restart it')
-    value = _checked(name, spec.value_type, value)
-    if name in WORLD_SETTINGS:
-        check_world_setting(name, value)
-    value = _RUN_TIME_CHECKS.get(name, lambda _, v: v)(name, value)
-    if name == 'ignored_pairs':
-        ignored_pair_rows(value, [c.name for c in parameters.colliders])
-    field = name.replace('.', '_')
-    return parameters._replace(**{field: value})
+    if not spec.field:  # static_colliders: the names make the colliders, with their blocks
+        return _with_colliders(parameters, _checked(name, STRING_ARRAY, value),
+                               block_value or (lambda _: None))
+    changed = parameters._replace(**{
+        spec.field: spec.check(name, _checked(name, spec.value_type, value))})
+    if changed.ignored_pairs is not parameters.ignored_pairs:  # new entries name colliders
+        ignored_pair_rows(changed.ignored_pairs, [c.name for c in parameters.colliders])
+    return changed
 
 
 def _with_colliders(parameters, names, block_value):
@@ -577,103 +677,6 @@ def _checked(name, type_name, value):
     raise ParameterError(name, 'must be of type %s, got %s' % (type_name, reprlib.repr(value)))
 
 
-def _margin(name, value):
-    if not 0.0 <= value <= MAX_COORDINATE:  # also refuses NaN
-        raise ParameterError(name, 'must be a distance in [0, %g] m, got %r'
-                             % (MAX_COORDINATE, value))
-    return value
-
-
-def _tolerance(name, value):
-    if not 0.0 < value <= MAX_COORDINATE:  # also refuses NaN
-        raise ParameterError(name, 'must be a distance in (0, %g] m, got %r'
-                             % (MAX_COORDINATE, value))
-    return value
-
-
-def _bits(name, value):
-    if not -2**63 <= value < 2**63:
-        raise ParameterError(name, 'must be a 64-bit integer (bits; -1 sets all), got %r' % value)
-    return value
-
-
-def _bits_list(name, values):
-    if not values:
-        raise ParameterError(name, 'needs one value for every dynamic body, or one per body')
-    return [_bits(name, value) for value in values]
-
-
-_RUN_TIME_CHECKS = {'margin': _margin, 'continuous_tolerance': _tolerance,
-                    'dynamic.collision_category': _bits_list,
-                    'dynamic.collision_mask': _bits_list}
-_COLLIDER_CHECKS = {'margin': _margin, 'collision_category': _bits, 'collision_mask': _bits,
-                    'pose': lambda name, value: _pose(name, value),
-                    'half_extents': lambda name, value: _half_extents(name, value, single=True)}
-
-
-def _checked_or_none(name, type_name, value):
-    return None if value is None else _checked(name, type_name, value)
-
-
-def _frame_id(value):
-    if not value or '\x00' in value:
-        raise ParameterError('frame_id', 'must name the frame of the poses (e.g. world), got %r'
-                             % value)
-    return value
-
-
-def _in_range(name, value, low, high):
-    if not low <= value <= high:  # also refuses NaN
-        raise ParameterError(name, 'must be in [%s, %s], got %r' % (low, high, value))
-    return value
-
-
-def _positive(name, value):
-    if not 0.0 < value < math.inf:
-        raise ParameterError(name, 'must be a positive number of seconds, got %r' % value)
-    return value
-
-
-def _pose(name, values):
-    if values is None:
-        raise ParameterError(name, 'missing; give x y z qx qy qz qw')
-    if len(values) != POSE_SIZE:
-        raise ParameterError(name, 'needs 7 values x y z qx qy qz qw, got %d' % len(values))
-    pose = np.array(values, dtype=np.float64)
-    if not np.all(np.isfinite(pose)):
-        raise ParameterError(name, 'has a NaN or infinite value: %s' % (values,))
-    if np.max(np.abs(pose[:3])) > MAX_COORDINATE:  # the World's bound on every body
-        raise ParameterError(name, 'position %s is beyond +-%g m' % (values[:3], MAX_COORDINATE))
-    norm = float(np.linalg.norm(pose[3:]))
-    if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
-        raise ParameterError(name, 'quaternion qx qy qz qw = %s has norm %.6g; it must be a '
-                                   'unit quaternion (norm within %g of 1)'
-                             % (values[3:], norm, QUATERNION_NORM_TOLERANCE))
-    return pose
-
-
-def _half_extents(name, values, single):
-    if values is None:
-        raise ParameterError(name, 'missing; give 3 half extents in metres')
-    if single and len(values) != 3:
-        raise ParameterError(name, 'needs 3 values, got %d' % len(values))
-    if len(values) == 0 or len(values) % 3:
-        raise ParameterError(name, 'needs 3 values (one size for all dynamic bodies) or 3 per '
-                                   'body, got %d' % len(values))
-    extents = np.array(values, dtype=np.float64)
-    return _checked_half_extents(name, extents if len(extents) == 3 else extents.reshape(-1, 3))
-
-
-def _checked_half_extents(name, extents):
-    """Return ``extents`` if every value is finite, >= 0 and <= MAX_COORDINATE."""
-    flat = extents.ravel()
-    bad = np.flatnonzero(~(np.isfinite(flat) & (flat >= 0.0) & (flat <= MAX_COORDINATE)))
-    if len(bad):
-        raise ParameterError(name, 'value %d is %r; half extents must be finite, >= 0 and <= %g'
-                             % (bad[0], float(flat[bad[0]]), MAX_COORDINATE))
-    return extents
-
-
 def load_half_extents(path):
     """Read ``dynamic.half_extents_file``: a .npy array of shape (N, 3) or (3,), in metres.
 
@@ -730,31 +733,26 @@ def load_static_scene(path):
             arrays[key] = array
     names = arrays['names'].tolist()
 
-    def check(what, check_value, *args):
-        """Return ``check_value(what, *args)``, its ParameterError as one of this parameter."""
-        try:
-            return check_value(what, *args)
-        except ParameterError as error:
-            raise ParameterError(name, "'%s': %s: %s" % (path, error.name, error.problem)) \
-                from None
-
-    check('names', lambda _, values: _check_collider_names(values), names)
-    # Whole arrays checked at once (10,000 rows and more); the first bad row is then checked
-    # alone by the YAML parameter's own check, which says why.
+    try:
+        _check_collider_names(names)
+    except ParameterError as error:
+        raise ParameterError(name, "'%s': names: %s" % (path, error.problem)) from None
+    # Whole arrays, 10,000 rows and more, checked at once by the pipeline's own checks.
     poses = arrays['poses'].astype(np.float64)
-    with np.errstate(invalid='ignore', over='ignore'):
-        norms = np.linalg.norm(poses[:, 3:], axis=1)
-        bad = ~(np.isfinite(poses).all(axis=1) & (np.abs(poses[:, :3]) <= MAX_COORDINATE).all(
-            axis=1) & (np.abs(norms - 1.0) <= QUATERNION_NORM_TOLERANCE))
-    for i in np.flatnonzero(bad)[:1]:
-        check('%s (row %d) pose' % (names[i], i), _pose, poses[i])
-    extents = check('half_extents', _checked_half_extents,
-                    arrays['half_extents'].astype(np.float64))
+    extents = arrays['half_extents'].astype(np.float64)
     count = len(names)
-    enabled = arrays.get('enabled', np.ones(count, np.bool_))
     margins = arrays.get('margins', np.zeros(count)).astype(np.float64)
-    for i in np.flatnonzero(~((margins >= 0.0) & (margins <= MAX_COORDINATE)))[:1]:
-        check('%s (row %d) margin' % (names[i], i), _margin, margins[i])
+    try:
+        check_boxes(poses, extents)
+    except InvalidBox as error:
+        raise ParameterError(name, "'%s': %s (row %d): %s" % (
+            path, names[error.body], error.body, error.reason)) from None
+    try:
+        check_margin(margins)
+    except InvalidDistance as error:
+        raise ParameterError(name, "'%s': %s (row %d) margin %s" % (
+            path, names[error.index], error.index, error.problem)) from None
+    enabled = arrays.get('enabled', np.ones(count, np.bool_))
     bits = {key: collision_bits(key, arrays.get(key, default))
             for key, default in (('collision_categories', DEFAULT_CATEGORY),
                                  ('collision_masks', ALL_CATEGORIES))}
