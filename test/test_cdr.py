@@ -5,11 +5,11 @@ from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
 import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
-from sensor_msgs.msg import PointCloud2, PointField
+from sensor_msgs.msg import JointState, PointCloud2, PointField
 from std_msgs.msg import Header
 
-from collision_node.ros.cdr import (CdrError, parse_pose_array, serialize_point_cloud,
-                                    serialize_pose_array)
+from collision_node.ros.cdr import (CdrError, parse_joint_state, parse_pose_array,
+                                    serialize_point_cloud, serialize_pose_array)
 
 LETTERS = 'abcdefghijklmnopq'
 UTF8_FRAMES = ['wörld', 'カメラ_link', '\U0001f916', 'é' * 7]
@@ -321,3 +321,65 @@ def test_serialize_point_cloud_matches_rclpy(count):
 def test_serialize_point_cloud_rejects_other_arrays(points, reason):
     with pytest.raises(ValueError, match=reason):
         serialize_point_cloud(0, 0, 'map', points)
+
+
+# -- sensor_msgs/JointState ----------------------------------------------------------------
+
+def joint_state(frame_id, names, positions, velocities=(), efforts=()):
+    msg = JointState()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = -3, 4
+    msg.header.frame_id = frame_id
+    msg.name = list(names)
+    msg.position = [float(value) for value in positions]
+    msg.velocity = [float(value) for value in velocities]
+    msg.effort = [float(value) for value in efforts]
+    return msg
+
+
+def assert_joint_state_as(view, msg):
+    assert (view.sec, view.nanosec, view.frame_id) == (
+        msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id)
+    assert view.names == tuple(msg.name)
+    assert_same_bits(view.positions, np.array(msg.position, np.float64))
+    assert view.positions.dtype.isnative and view.positions.flags.aligned
+
+
+@pytest.mark.parametrize('count', [0, 1, 2, 9])
+def test_joint_state_parses_as_rclpy_reads_it(count):
+    rng = np.random.default_rng(20 + count)
+    for frame_length in range(4):
+        names = [LETTERS[:k % 6] + UTF8_FRAMES[k % 4] * (k % 2) for k in range(count)]
+        for lengths in ((count, 0, 0), (count, count, count), (0, count, 0), (count, 1, 3)):
+            values = [random_poses(rng, 1)[0, :1].repeat(n) * 0 + rng.normal(size=n)
+                      for n in lengths]
+            msg = joint_state(LETTERS[:frame_length], names, *values)
+            buffer = serialize_message(msg)
+            assert_joint_state_as(parse_joint_state(buffer), deserialize_message(buffer,
+                                                                                  JointState))
+
+
+def test_joint_state_reuses_the_names_of_the_previous_message_only_when_they_are_the_same():
+    first = parse_joint_state(serialize_message(joint_state('', ['a', 'bc'], [1.0, 2.0])))
+    same = parse_joint_state(serialize_message(joint_state('', ['a', 'bc'], [3.0, 4.0])), first)
+    assert same.names is first.names and list(same.positions) == [3.0, 4.0]
+    for names in (['a', 'bd'], ['a'], ['a', 'bc', 'e'], ['bc', 'a']):
+        other = parse_joint_state(serialize_message(joint_state('x', names, range(len(names)))),
+                                  first)
+        assert other.names == tuple(names)
+
+
+def test_every_truncation_of_a_joint_state_is_rejected():
+    buffer = serialize_message(joint_state('base', ['j1', 'joint_2'], [0.5, -1.0], [1.0],
+                                           [2.0, 3.0]))
+    for cut in range(len(buffer)):
+        with pytest.raises(CdrError):
+            parse_joint_state(buffer[:cut])
+    with pytest.raises(CdrError, match='follow the effort'):
+        parse_joint_state(buffer + bytes(24))
+
+
+def test_a_joint_state_claiming_more_names_than_fit_is_rejected_before_reading_them():
+    buffer = bytearray(serialize_message(joint_state('', ['a'], [1.0])))
+    struct.pack_into('<I', buffer, 4 + 16, 2**31)  # the name count, after an empty frame_id
+    with pytest.raises(CdrError, match='name strings cannot fit'):
+        parse_joint_state(bytes(buffer))

@@ -169,6 +169,13 @@ def test_joint_values_merge_partial_messages_by_name():
             joints.waypoints(names, points)
     with pytest.raises(JointInputError, match="joint 'd' is not in joint_names and has no"):
         kept.waypoints(['c'], [[0.0]])
+    joints.merge(('a', 'x', 'a'), [4.0, 5.0, 6.0])  # a name given twice: its last value
+    names = ('c', 'b')
+    for positions in ([7.0, 8.0], [9.0, 10.0]):  # the same names again, the same object
+        joints.merge(names, positions)
+    np.testing.assert_array_equal(joints.q(), [6.0, 10.0, 9.0])
+    joints.merge(['b'], [11.0])  # other names after them
+    np.testing.assert_array_equal(joints.q(), [6.0, 11.0, 9.0])
 
 
 def test_markers_name_each_box_by_its_link():

@@ -24,6 +24,10 @@ CDR_LE = b'\x00\x01'
 # A DDS payload may be padded at its end to a multiple of 4 (the option bytes count that
 # padding); 7 also covers padding to the 8-byte alignment of float64. More is not padding.
 MAX_TRAILING_BYTES = 7
+# rclpy sizes a JointState as if its empty float64 sequences were aligned to 8 as well: up to
+# 12 bytes follow the last one (measured over names, frame_id and sequence lengths); 4 more
+# for a payload padded to a multiple of 4.
+MAX_JOINT_STATE_TRAILING_BYTES = 16
 POSE_FIELDS = 7  # x y z qx qy qz qw, as float64
 POSE_SIZE = POSE_FIELDS * 8
 
@@ -67,31 +71,12 @@ def parse_pose_array(buffer):
     Accepts little- and big-endian plain CDR; any object with the buffer protocol.
     Raises CdrError saying why the buffer is not a PoseArray.
     """
-    # A memoryview and struct, not numpy, for the header: a dozen small numpy calls cost
-    # ~80 µs from a cold cache, as every input at a robot's rate comes (doc/benchmarks.md).
-    data = memoryview(buffer).cast('B')
-    if len(data) < ENCAPSULATION_SIZE:
-        raise CdrError('%d bytes are too short for the 4-byte CDR encapsulation header'
-                       % len(data))
-    representation = bytes(data[:2])
-    if representation not in _LAYOUTS:
-        raise CdrError('unsupported CDR encapsulation 0x%s; expected plain CDR 0x0001 '
-                       '(little-endian) or 0x0000 (big-endian)' % representation.hex())
-    stamp_and_length, count_format, value_type = _LAYOUTS[representation]
-    size = len(data) - ENCAPSULATION_SIZE  # of the body; offsets below count from its start
-
-    if size < stamp_and_length.size:
-        raise CdrError('truncated: %d body bytes cannot hold the stamp and the frame_id '
-                       'length (12 bytes)' % size)
-    sec, nanosec, length = stamp_and_length.unpack_from(data, ENCAPSULATION_SIZE)
-    frame_id = _frame_id(data[ENCAPSULATION_SIZE:], stamp_and_length.size, length)
-
-    count_at = _aligned(stamp_and_length.size + length, 4)
-    if count_at + 4 > size:
-        raise CdrError('truncated: the pose count would end at body byte %d of %d'
-                       % (count_at + 4, size))
-    count, = count_format.unpack_from(data, ENCAPSULATION_SIZE + count_at)
-    poses_at = _aligned(count_at + 4, 8) if count else count_at + 4
+    data, body, layout, sec, nanosec, frame_id, at = _header(buffer)
+    _, count_format, value_type = layout
+    size = len(body)
+    count, poses_at = _count(body, at, count_format, 'pose')
+    if count:
+        poses_at = _aligned(poses_at, 8)
     end = poses_at + count * POSE_SIZE
     if end > size:
         raise CdrError('truncated: %d poses need %d body bytes, the buffer has %d'
@@ -105,6 +90,51 @@ def parse_pose_array(buffer):
     if not (poses.dtype.isnative and poses.flags.aligned):
         poses = poses.astype(np.float64)  # a native, aligned, writeable copy
     return PoseArrayView(sec, nanosec, frame_id, poses)
+
+
+class JointStateView(NamedTuple):
+    """A parsed sensor_msgs/JointState: stamp, frame, names and positions (float64, native).
+
+    ``names_block`` is the CDR of the name sequence: handed back to :func:`parse_joint_state`
+    as ``previous``, a message with the same names (a driver's every message) reuses
+    ``names`` without decoding a string.
+    """
+
+    sec: int
+    nanosec: int
+    frame_id: str
+    names: tuple
+    positions: np.ndarray
+    names_block: bytes
+
+
+def parse_joint_state(buffer, previous=None):
+    """Read a serialized sensor_msgs/JointState; its velocities and efforts are only checked.
+
+    ``previous``: the JointStateView of the publisher's last message, or None. Accepts
+    little- and big-endian plain CDR. Raises CdrError saying why the buffer is not a
+    JointState.
+    """
+    data, body, layout, sec, nanosec, frame_id, at = _header(buffer)
+    _, count_format, value_type = layout
+    names_at = _aligned(at, 4)
+    # The sequence's bytes hold its count and each string's length: the same bytes are the
+    # same names.
+    block = previous.names_block if previous is not None else b''
+    if block and body[names_at:names_at + len(block)] == block:
+        names, at = previous.names, names_at + len(block)
+    else:
+        names, at = _strings(body, names_at, count_format, 'name')
+        block = bytes(body[names_at:at])
+    positions, at = _doubles(data, at, count_format, value_type, 'position')
+    for field in ('velocity', 'effort'):
+        at = _doubles(data, at, count_format, value_type, field)[1]
+    if len(body) - at > MAX_JOINT_STATE_TRAILING_BYTES:
+        raise CdrError('%d bytes follow the effort sequence; at most %d may be padding'
+                       % (len(body) - at, MAX_JOINT_STATE_TRAILING_BYTES))
+    if not (positions.dtype.isnative and positions.flags.aligned):
+        positions = positions.astype(np.float64)  # a native, aligned, writeable copy
+    return JointStateView(sec, nanosec, frame_id, names, positions, block)
 
 
 def serialize_pose_array(sec, nanosec, frame_id, poses):
@@ -179,22 +209,82 @@ def _point_fields(dtype):
     return writer.body()
 
 
-def _frame_id(body, start, length):
+def _header(buffer):
+    """Return the buffer's bytes, body, layout, stamp, frame_id and the body offset after it."""
+    # A memoryview and struct, not numpy, for the header: a dozen small numpy calls cost
+    # ~80 µs from a cold cache, as every input at a robot's rate comes (doc/benchmarks.md).
+    data = memoryview(buffer).cast('B')
+    if len(data) < ENCAPSULATION_SIZE:
+        raise CdrError('%d bytes are too short for the 4-byte CDR encapsulation header'
+                       % len(data))
+    representation = bytes(data[:2])
+    if representation not in _LAYOUTS:
+        raise CdrError('unsupported CDR encapsulation 0x%s; expected plain CDR 0x0001 '
+                       '(little-endian) or 0x0000 (big-endian)' % representation.hex())
+    layout = _LAYOUTS[representation]
+    stamp_and_length = layout[0]
+    body = data[ENCAPSULATION_SIZE:]  # offsets count from the body's start
+    if len(body) < stamp_and_length.size:
+        raise CdrError('truncated: %d body bytes cannot hold the stamp and the frame_id '
+                       'length (12 bytes)' % len(body))
+    sec, nanosec, length = stamp_and_length.unpack_from(body, 0)
+    frame_id = _string(body, stamp_and_length.size, length, 'frame_id')
+    return data, body, layout, sec, nanosec, frame_id, stamp_and_length.size + length
+
+
+def _string(body, start, length, what):
     if length == 0:
-        raise CdrError('frame_id length 0: a CDR string holds at least its NUL')
+        raise CdrError('%s length 0: a CDR string holds at least its NUL' % what)
     end = start + length
     if end > len(body):
-        raise CdrError('truncated: frame_id of %d bytes would end at body byte %d of %d'
-                       % (length, end, len(body)))
+        raise CdrError('truncated: %s of %d bytes would end at body byte %d of %d'
+                       % (what, length, end, len(body)))
     text = bytes(body[start:end - 1])
     if body[end - 1] != 0:
-        raise CdrError('frame_id does not end with a NUL byte')
+        raise CdrError('%s does not end with a NUL byte' % what)
     if b'\x00' in text:
-        raise CdrError('frame_id holds a NUL byte before its end')
+        raise CdrError('%s holds a NUL byte before its end' % what)
     try:
         return text.decode('utf-8')
     except UnicodeDecodeError as error:
-        raise CdrError('frame_id is not UTF-8: %s' % error) from None
+        raise CdrError('%s is not UTF-8: %s' % (what, error)) from None
+
+
+def _count(body, at, count_format, what):
+    """Return a sequence's length at body offset ``at`` (aligned here) and where it ends."""
+    at = _aligned(at, 4)
+    if at + 4 > len(body):
+        raise CdrError('truncated: the %s count would end at body byte %d of %d'
+                       % (what, at + 4, len(body)))
+    return count_format.unpack_from(body, at)[0], at + 4
+
+
+def _strings(body, at, count_format, what):
+    """Return a sequence of strings at ``at`` as a tuple, and the body offset after it."""
+    count, at = _count(body, at, count_format, what)
+    if count > len(body) // 5:  # each string takes at least its length and its NUL
+        raise CdrError('truncated: %d %s strings cannot fit in %d body bytes'
+                       % (count, what, len(body)))
+    texts = []
+    for index in range(count):
+        length, at = _count(body, at, count_format, '%s %d length' % (what, index))
+        texts.append(_string(body, at, length, '%s %d' % (what, index)))
+        at += length
+    return tuple(texts), at
+
+
+def _doubles(data, at, count_format, value_type, what):
+    """Return a float64 sequence at body offset ``at`` (a view), and the offset after it."""
+    body = data[ENCAPSULATION_SIZE:]
+    count, at = _count(body, at, count_format, what)
+    if count:
+        at = _aligned(at, 8)
+    end = at + 8 * count
+    if end > len(body):
+        raise CdrError('truncated: %d %s values need %d body bytes, the buffer has %d'
+                       % (count, what, end, len(body)))
+    return np.frombuffer(data, dtype=value_type, count=count,
+                         offset=ENCAPSULATION_SIZE + at), end
 
 
 def _bytes_of(array):

@@ -32,6 +32,9 @@ class JointValues:
         self._index = {name: i for i, name in enumerate(self.names)}
         self._values = np.zeros(len(self.names))
         self._known = np.zeros(len(self.names), np.bool_)
+        # The last message's names, and which of its entries (the last one of a name given
+        # twice) go to which joints: a publisher sends the same names every time.
+        self._merged_names, self._entries, self._joints = None, None, None
         if previous is not None:
             for i, name in enumerate(previous.names):
                 j = self._index.get(name)
@@ -60,10 +63,13 @@ class JointValues:
         if len(bad):
             raise JointInputError('joint %r: position %r'
                                   % (names[bad[0]], float(positions[bad[0]])))
-        for name, value in zip(names, positions):
-            i = self._index.get(name)
-            if i is not None:
-                self._values[i], self._known[i] = value, True
+        if names is not self._merged_names and names != self._merged_names:
+            last = {self._index[name]: k for k, name in enumerate(names) if name in self._index}
+            self._entries = np.array(list(last.values()), np.int64)
+            self._joints = np.array(list(last), np.int64)
+            self._merged_names = names
+        self._values[self._joints] = positions[self._entries]
+        self._known[self._joints] = True
 
     def q(self):
         """Return a copy of the values (dof,); JointInputError if a joint has none yet."""

@@ -84,7 +84,7 @@ from collision_node.pipeline.static_scene import InvalidCollider
 from collision_node.pipeline.warm_up import warm_up
 from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
-from collision_node.ros.cdr import parse_pose_array
+from collision_node.ros.cdr import parse_joint_state, parse_pose_array
 from collision_node.ros.joints import JointValues
 from collision_node.ros.lifetime import InitError, RosProgram
 from collision_node.ros.markers import MarkerWriter
@@ -197,6 +197,7 @@ class CollisionNode(LifecycleNode):
         self._robot = None
         self._model_texts = dict.fromkeys(MODEL_TOPICS, '')
         self._joints = None
+        self._joint_state = None  # the last joint_states message taken (its names are reused)
         self.finalized = Future()  # done once the shutdown transition has run
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
@@ -269,7 +270,7 @@ class CollisionNode(LifecycleNode):
         _add_colliders(world, config.colliders)
         world.set_filters(*config.filters())
         self._scene_version = 0
-        self._robot, self._joints = None, None
+        self._robot, self._joints, self._joint_state = None, None, None
         self._model_texts = {topic: getattr(config, topic) for topic in MODEL_TOPICS}
         if config.robot_description:  # a model from the parameters: built now, or no start
             try:
@@ -316,7 +317,7 @@ class CollisionNode(LifecycleNode):
                 self._create_input(String, topic, callback, scene=True, qos=MODEL_QOS,
                                    raw=False)
         self._create_input(JointState, 'joint_states', self._on_joint_states,
-                           self._keep_joint_states, qos=JOINT_STATES_QOS, raw=False)
+                           self._keep_joint_states, qos=JOINT_STATES_QOS)
         self._create_input(JointTrajectory, 'check_trajectory', self._on_check_trajectory,
                            qos=REQUEST_QOS, raw=False)
         self.get_logger().info(
@@ -395,7 +396,7 @@ class CollisionNode(LifecycleNode):
             self._pending, self._last_sequence, self._next_markers_s = None, None, -math.inf
             with self._world_lock:
                 world, self._world, self._config = self._world, None, None
-                self._robot, self._joints = None, None
+                self._robot, self._joints, self._joint_state = None, None, None
             if world is not None:
                 world.close()
 
@@ -644,10 +645,11 @@ class CollisionNode(LifecycleNode):
         self._monitor.robot_refused(reason)
         self.get_logger().warn('robot model refused, the previous one stays: %s' % reason)
 
-    def _on_joint_states(self, message):
+    def _on_joint_states(self, buffer):
         """Take a joint_states message's values; once every joint has one, answer on collisions."""
         start = time.perf_counter()
-        if not self._merge_joint_states(message):
+        message = self._merge_joint_states(buffer)
+        if message is None:
             return
         self._monitor.received()
         try:
@@ -666,25 +668,30 @@ class CollisionNode(LifecycleNode):
             self.get_logger().warn('no answer on collisions until joint_states gives %s'
                                    % ', '.join(missing), throttle_duration_sec=LOG_THROTTLE_S)
             return
-        stamp = message.header.stamp
-        self._publish_tick(start, checked, result, stamp.sec, stamp.nanosec, poses,
+        self._publish_tick(start, checked, result, message.sec, message.nanosec, poses,
                            robot.half_extents)
 
-    def _keep_joint_states(self, message):
+    def _keep_joint_states(self, buffer):
         """While not active: keep the joint values (answer nothing); count an ignored input."""
         self._monitor.ignored()
-        self._merge_joint_states(message)
+        self._merge_joint_states(buffer)
 
-    def _merge_joint_states(self, message):
-        """Merge a message into the joint values; False without a robot or when refused."""
+    def _merge_joint_states(self, buffer):
+        """Merge a message into the joint values; return it, or None without a robot or refused.
+
+        Read from its CDR: a driver's names, the same in every message, are read once
+        (cdr.parse_joint_state), and its positions go to q as one array.
+        """
         if self._joints is None:  # no model yet: nothing to check against
-            return False
+            return None
         try:
-            self._joints.merge(message.name, message.position)
+            message = parse_joint_state(buffer, self._joint_state)
+            self._joints.merge(message.names, message.positions)
         except REFUSALS as error:
             self._reject('joint_states', error)
-            return False
-        return True
+            return None
+        self._joint_state = message
+        return message
 
     def _on_check_trajectory(self, message):
         """Answer a check_trajectory request on trajectory_collisions; refuse a bad one."""
