@@ -355,10 +355,10 @@ def run_rate(client, frames, rate_hz, plan, run_id):
 
 def percentiles(name, values_ms):
     if not len(values_ms):
-        return dict.fromkeys('%s_ms_%s' % (name, s) for s in ('median', 'p99', 'max'))
-    median, p99 = np.percentile(values_ms, (50, 99), method='higher')
-    return {'%s_ms_median' % name: float(median), '%s_ms_p99' % name: float(p99),
-            '%s_ms_max' % name: float(np.max(values_ms))}
+        return dict.fromkeys('%s_ms_%s' % (name, s) for s in ('median', 'p90', 'p99', 'max'))
+    median, p90, p99 = np.percentile(values_ms, (50, 90, 99), method='higher')
+    return {'%s_ms_median' % name: float(median), '%s_ms_p90' % name: float(p90),
+            '%s_ms_p99' % name: float(p99), '%s_ms_max' % name: float(np.max(values_ms))}
 
 
 def stage_summary(statuses):
@@ -481,11 +481,13 @@ def _against_echo(name, plan, domain_id, progress, params_path, frames, contacts
 
 def arm_target_line(row):
     """Return the arm or joint_states section's target as one line, with its verdict."""
-    return ('%s through ROS at %g Hz, median latency <= echo + %g ms: node %.3f ms, echo %.3f '
-            'ms (%d/%d and %d/%d answered): +%.3f ms: %s' % (
+    return ('%s through ROS at %g Hz, median latency <= echo + %g ms: node %.3f ms (p90 %.3f, '
+            'p99 %.3f), echo %.3f ms (p90 %.3f, p99 %.3f) (%d/%d and %d/%d answered): +%.3f ms: '
+            '%s' % (
                 row['name'], row['rate_hz'], row['target_added_ms'], row['node_ms_median'],
-                row['echo_ms_median'], row['node_answered'], row['sent'], row['echo_answered'],
-                row['sent'], row['added_ms'],
+                row['node_ms_p90'], row['node_ms_p99'], row['echo_ms_median'],
+                row['echo_ms_p90'], row['echo_ms_p99'], row['node_answered'], row['sent'],
+                row['echo_answered'], row['sent'], row['added_ms'],
                 'PASS' if row['added_ms'] <= row['target_added_ms']
                 and row['node_answered'] == row['sent'] else 'FAIL'))
 
@@ -881,10 +883,12 @@ def markdown(results):
                     results['plan']['arm_turn_s'], arm['turns'],
                     _fmt_list(arm['node_turn_medians_ms']),
                     _fmt_list(arm['echo_turn_medians_ms'])), '',
-                '| who | answered | median | p99 | max |', '|---|---|---|---|---|']
-        out += ['| %s | %d/%d | %s | %s | %s |' % (
-            who, arm[who + '_answered'], arm['sent'], _fmt(arm[who + '_ms_median']),
-            _fmt(arm[who + '_ms_p99']), _fmt(arm[who + '_ms_max'])) for who in ('node', 'echo')]
+                '| who | answered | median | p90 | p99 | max |', '|---|---|---|---|---|---|']
+        out += ['| %s | %d/%d | %s | %s | %s | %s |' % (
+            (who, arm[who + '_answered'], arm['sent'])
+            + tuple(_fmt(arm['%s_ms_%s' % (who, statistic)])
+                    for statistic in ('median', 'p90', 'p99', 'max')))
+            for who in ('node', 'echo')]
         out += ['', 'Target: ' + arm_target_line(arm), '']
     for title, key, columns in (
             ('Floor: the same messages answered at once by an echo node (ms)', 'floor',

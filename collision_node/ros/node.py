@@ -53,6 +53,7 @@ not the node's.
 import contextlib
 import copy
 import functools
+import gc
 import math
 import threading
 import time
@@ -934,6 +935,9 @@ def main(args=None):
     try:
         with RosProgram(args) as program:
             node = program.start(CollisionNode)
+            # What the start made (modules, kernels, the World) lives as long as the process:
+            # frozen, it is not walked by the garbage collector's passes during ticks.
+            gc.freeze()
             program.spin_until(node.finalized)
     except (InitError, params.ParameterError) as error:
         rclpy.logging.get_logger('collision_node').fatal(str(error))
