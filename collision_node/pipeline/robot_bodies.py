@@ -26,14 +26,14 @@ import math
 import numpy as np
 
 from collision_node.pipeline._jit import kernel
-from collision_node.pipeline.contacts import DYNAMIC
+from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE
 from collision_node.pipeline.distance import box_distance
 from collision_node.pipeline.frames import matrix, relative_pose, sum_abs
 from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS, write_boxes
 from collision_node.pipeline.robot import (box_poses_of_states, forward_kinematics,
                                            IDENTITY_POSE, link_frames, RobotModel)
 from collision_node.pipeline.sat import NEAR, SEPARATED, separating_axis_test
-from collision_node.pipeline.small_scene import check_states, STATE_CONTACT_DTYPE
+from collision_node.pipeline.small_scene import check_states
 
 # What a segment's row takes from the exact contact at its toi, when its pair collides there.
 GEOMETRY = ('x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth', 'distance')

@@ -20,15 +20,12 @@ one row per collider in id order: (row, id, category, mask, named in an ignored 
 import numpy as np
 
 from collision_node.pipeline._jit import kernel
-from collision_node.pipeline.contacts import CONTACT_DTYPE, DYNAMIC, STATIC, write_contact
+from collision_node.pipeline.contacts import (CONTACT_DTYPE, DYNAMIC, STATE_CONTACT_DTYPE, STATIC,
+                                              write_contact)
 from collision_node.pipeline.filters import dynamic_bits, pair_checked, static_key
 from collision_node.pipeline.obb import aabbs_overlap, VALID, write_boxes
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 
-# The contacts of a batch: each with its state's index, first (it is the first sort key; and
-# so the contacts' fields are not a prefix of these, which numba would take for a subtype).
-# Aligned: each float64 field at a multiple of 8, as the clouds' writer reads them.
-STATE_CONTACT_DTYPE = np.dtype([('state', np.uint32)] + CONTACT_DTYPE.descr, align=True)
 # Columns of ``statics``.
 ROW, ID, CATEGORY, MASK, IGNORABLE = range(5)
 # Counters of one pass, as its stats array holds them.
