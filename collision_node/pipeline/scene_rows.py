@@ -20,7 +20,7 @@ import numpy as np
 
 from collision_node.pipeline.broadphase import Settings
 from collision_node.pipeline.filters import filters_nothing, PairFilter
-from collision_node.pipeline.obb import Boxes, InvalidBox, pad_bounds, set_boxes
+from collision_node.pipeline.obb import Boxes, InvalidBox, MAX_COORDINATE, pad_bounds, set_boxes
 from collision_node.pipeline.small_scene import checked_pairs, statics_table
 from collision_node.pipeline.z_order import inverse, z_order
 
@@ -38,6 +38,14 @@ class Options(NamedTuple):
     sphere_prefilter: bool
     continuous: bool
     tolerance: float          # m, continuous.py
+
+    def settings(self):
+        """Return the World constructor's keyword arguments that give these options."""
+        return {'broad_phase': self.broad_phase, 'sphere_prefilter': self.sphere_prefilter,
+                'octree_max_depth': self.phase_settings.octree_max_depth,
+                'octree_leaf_cooldown_ticks': self.phase_settings.octree_leaf_cooldown_ticks,
+                'margin': self.margin, 'continuous': self.continuous,
+                'continuous_tolerance': self.tolerance}
 
 
 class StaticRows(NamedTuple):
@@ -224,3 +232,32 @@ def write_bodies(boxes, first, poses, half_extents, rows, bodies, workers):
         index, reason = min(refused)
         raise InvalidBox(int(np.arange(len(poses))[bodies][index]), reason)
     return written
+
+
+def as_poses(poses):
+    """Return ``poses`` as a writable C-contiguous float64 (N, 7) array (no copy if it is)."""
+    if type(poses) is not np.ndarray or poses.dtype != np.float64 or poses.ndim != 2 \
+            or not poses.flags.c_contiguous or not poses.flags.writeable:
+        # Writable too: numba compiles a read-only array (a message's bytes) apart.
+        poses = np.require(poses, np.float64, ['C', 'A', 'W']).reshape(-1, 7)
+    if poses.shape[1] != 7:
+        raise ValueError('poses must have shape (N, 7) as x y z qx qy qz qw, got %s'
+                         % (poses.shape,))
+    return poses
+
+
+def check_tolerance(value):
+    """Return the continuous tolerance ``value`` as a float; ValueError unless in (0, max]."""
+    tolerance = float(value)
+    if not 0.0 < tolerance <= MAX_COORDINATE:  # also refuses NaN
+        raise ValueError('continuous tolerance must be in (0, %g] m, got %r'
+                         % (MAX_COORDINATE, value))
+    return tolerance
+
+
+def check_margin(name, value):
+    """Return the margin ``value`` (named ``name``) as a float; ValueError unless in [0, max]."""
+    margin = float(value)
+    if not 0.0 <= margin <= MAX_COORDINATE:  # also refuses NaN
+        raise ValueError('%s must be in [0, %g] m, got %r' % (name, MAX_COORDINATE, value))
+    return margin

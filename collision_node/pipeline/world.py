@@ -6,33 +6,24 @@
     world.move_static(ids, static_poses)                       # colliders by their ids
 
 The World is a coordinator: it holds the settings and the static scene, and hands each check
-to a path that lives elsewhere, as MoveIt's FCL, Bullet and AllValid environments implement
-one ``CollisionEnv``. Every path answers with contacts and one statistics record
-(stats.py), and each answer is the same to the bit whichever path gives it.
+to a path that lives elsewhere, as MoveIt's FCL, Bullet and AllValid implement one
+``CollisionEnv``. Every path answers with contacts and one statistics record (stats.py); an
+answer is the same to the bit whichever path gives it.
 
-- The static scene (static_scene.py) changes only through its verbs, keyed by the colliders'
-  stable ids: ``set_static`` (replace all), ``add_static``, ``move_static``,
-  ``remove_static``, ``enable_static`` and ``update_static``. Each checks its whole input
-  first and changes nothing when it raises ValueError.
-- The scene rows (scene_rows.py) are what the World derives from the scene and its settings
-  at a version: the static rows, their ids, collision bits and margins, and the options. The
-  World is their only writer; the paths read them.
-- The general path (general_path.py): a broad phase over static and dynamic rows, the
-  still-body cache, the loose statics and the continuous sweeps; any size of scene.
-- The one pass (one_pass.py): a small scene in one compiled call (``ONE_PASS_PAIRS``), with
-  its rows and last-input cache; and the batches of ``check_states``, small ones in one pass,
-  larger ones by a discrete general path of their own over the same rows.
-- The robot path (robot_path.py): joint values in, forward kinematics, trajectories.
+- static_scene.py: the colliders by stable id, changed only through the verbs ``set_static``,
+  ``add_static``, ``move_static``, ``remove_static``, ``enable_static``, ``update_static``
+  (each checks its whole input first and changes nothing when it raises ValueError).
+- scene_rows.py: what the World derives from the scene and its settings at a version (the
+  static rows, their ids, bits and margins, the options). The World writes it, paths read it.
+- general_path.py: a broad phase over static and dynamic rows, the still-body cache, the loose
+  statics and the continuous sweeps; any size of scene.
+- one_pass.py: a small scene in one compiled call, discrete, with ``ONE_PASS_PHASES``; and the
+  batches of ``check_states``. robot_path.py: joint values in, trajectories.
 
-How a change reaches every path. A verb or a setter changes the scene rows, which draw a new
-version (scene_rows.py): a setting becomes new ``Options`` there. Each path keys what it keeps
-on those versions and on its own inputs, and meets a change on its next call; no path drops
-another's cache, and no change has to remember one.
-
-A step is checked in one pass when the scene is small and the broad phase one the pass stands
-in for (``ONE_PASS_PHASES``: the pass is brute force), discrete; by the general path
-otherwise. The last accepted input, whichever path checked it, is where a continuous step's
-motion starts.
+How a change reaches every path: a verb or a setter changes the scene rows, which draw a new
+version (a setting becomes new ``Options`` there). Each path keys what it keeps on those
+versions and its own inputs, and meets the change on its next call: no path drops another's
+cache. A continuous step's motion starts at the last accepted input, whichever path took it.
 """
 import time
 from typing import NamedTuple
@@ -44,19 +35,19 @@ from collision_node.pipeline.contacts import CONTACT_DTYPE, DYNAMIC, STATIC  # n
 from collision_node.pipeline.continuous import CONTINUOUS_TOLERANCE
 from collision_node.pipeline.filters import ALL_CATEGORIES, DEFAULT_CATEGORY, PairFilter
 from collision_node.pipeline.general_path import GeneralPath
-from collision_node.pipeline.obb import MAX_COORDINATE
 from collision_node.pipeline.one_pass import Batches, OnePass
 from collision_node.pipeline.robot_bodies import DEFAULT_RESOLUTION, RobotBodies
 from collision_node.pipeline.robot_path import RobotPath
-from collision_node.pipeline.scene_rows import Options, SceneRows
+from collision_node.pipeline.scene_rows import (as_poses, check_margin, check_tolerance, Options,
+                                                SceneRows)
 from collision_node.pipeline.static_scene import StaticScene
 from collision_node.pipeline.stats import Result  # noqa: F401 (re-exported)
 from collision_node.pipeline.workers import Workers
 
-# Small scenes are checked in one compiled pass (small_scene.py) when the broad phase is one of
-# these (the pass is brute force) and a tick has at most this many pairs to test, about 25 µs
-# of AABB tests: the general path's stages cost ~60 µs of calls however few the bodies, and
-# its broad phases catch up with testing every pair at about 4x this many (doc/benchmarks.md).
+# Small scenes are checked in one pass when the broad phase is one of these (the pass is brute
+# force) and a tick has at most this many pairs to test, ~25 µs of AABB tests: the general
+# path's stages cost ~60 µs of calls however few the bodies, and its broad phases catch up
+# with testing every pair at about 4x this many (doc/benchmarks.md).
 ONE_PASS_PHASES = ('auto', 'brute_force')
 ONE_PASS_PAIRS = 16384
 
@@ -64,9 +55,8 @@ ONE_PASS_PAIRS = 16384
 class Description(NamedTuple):
     """What builds a World again elsewhere (another process): plain, picklable values.
 
-    :meth:`World.describe` gives it, :meth:`World.from_description` builds from it; the new
-    World answers ``check_states``, ``check_joints`` and ``step`` as this one does, bit for bit
-    (its first step has no last input to sweep from or reuse).
+    A World from_description answers as the described one, bit for bit (its first step has no
+    last input to sweep from or reuse).
     """
 
     settings: dict     # the constructor's keyword arguments
@@ -85,20 +75,17 @@ class World:
         """Raise ValueError on an unknown broad phase or an invalid setting."""
         self._workers = Workers(threads)
         settings = Settings(octree_max_depth, octree_leaf_cooldown_ticks)
-        make_broad_phase(broad_phase, settings)  # checks the name and settings
         self._scene = StaticScene()
         self._rows = SceneRows(Options(
-            broad_phase, settings, _checked_margin('margin', margin), bool(sphere_prefilter),
-            bool(continuous), _checked_tolerance(continuous_tolerance)), self._workers)
+            broad_phase, settings, check_margin('margin', margin), bool(sphere_prefilter),
+            bool(continuous), check_tolerance(continuous_tolerance)), self._workers)
         self._rows.derive(self._scene.colliders)
         self._filters_given = (DEFAULT_CATEGORY, ALL_CATEGORIES, np.zeros((0, 4), np.int64))
-        self._general = GeneralPath(self._rows)
+        self._general = GeneralPath(self._rows)  # raises ValueError on an unknown phase
         self._one_pass = OnePass(self._rows)
         self._batches = Batches(self._rows)
         self._robot = RobotPath(self._rows, self._batches)
         self._previous = None  # the poses of the last accepted input (the motion's start)
-
-    # ------------------------------------------------------------------ settings
 
     @property
     def broad_phase(self):
@@ -119,7 +106,7 @@ class World:
 
     @margin.setter
     def margin(self, value):
-        self._set_options(margin=_checked_margin('margin', value))
+        self._set_options(margin=check_margin('margin', value))
 
     @property
     def continuous(self):
@@ -137,17 +124,16 @@ class World:
 
     @continuous_tolerance.setter
     def continuous_tolerance(self, value):
-        self._set_options(tolerance=_checked_tolerance(value))
+        self._set_options(tolerance=check_tolerance(value))
 
     def configure(self, broad_phase=None, octree_max_depth=None,
                   octree_leaf_cooldown_ticks=None):
         """Change the broad phase or its settings; raises ValueError on invalid values."""
         options = self._rows.options
+        given = {'octree_max_depth': octree_max_depth,
+                 'octree_leaf_cooldown_ticks': octree_leaf_cooldown_ticks}
         settings = options.phase_settings._replace(**{
-            key: value for key, value in (
-                ('octree_max_depth', octree_max_depth),
-                ('octree_leaf_cooldown_ticks', octree_leaf_cooldown_ticks))
-            if value is not None})
+            key: value for key, value in given.items() if value is not None})
         name = options.broad_phase if broad_phase is None else broad_phase
         make_broad_phase(name, settings)  # checks the name and settings
         self._set_options(broad_phase=name, phase_settings=settings)
@@ -176,8 +162,6 @@ class World:
         options = self._rows.options._replace(**changes)
         if options != self._rows.options:
             self._rows.set_options(options, self._scene.colliders)
-
-    # ------------------------------------------------------------------ a robot
 
     def set_robot(self, robot, base_pose=None):
         """Make the boxes of ``robot`` (a Robot) the dynamic bodies, its root at ``base_pose``.
@@ -222,9 +206,7 @@ class World:
         (state, id_a, type_b, id_b, toi).
         """
         return self._robot.check_trajectory(self, waypoints,
-                                            _checked_margin('resolution', resolution))
-
-    # ------------------------------------------------------------------ the static scene
+                                            check_margin('resolution', resolution))
 
     def set_static(self, poses, half_extents, ids=None, margins=0.0,
                    categories=DEFAULT_CATEGORY, masks=ALL_CATEGORIES):
@@ -282,8 +264,6 @@ class World:
         if self._scene.version != version:
             self._rows.derive(self._scene.colliders)
 
-    # ------------------------------------------------------------------ checks
-
     def step(self, poses, half_extents):
         """Collide the dynamic boxes (poses (D, 7), half extents (D, 3) or (3,)).
 
@@ -305,7 +285,7 @@ class World:
             result = self._one_pass.step_again(poses, half_extents, gathered, start)
             self._previous = gathered.last_poses
             return result
-        poses = _as_poses(poses)
+        poses = as_poses(poses)
         half_extents = np.asarray(half_extents, dtype=np.float64)
         n, options = len(poses), self._rows.options
         if not options.continuous and options.broad_phase in ONE_PASS_PHASES \
@@ -331,8 +311,6 @@ class World:
         """
         return self._batches.check(states, half_extents, ONE_PASS_PAIRS)
 
-    # ------------------------------------------------------------------ checks and cleanup
-
     def validate(self):
         """Check the whole World (for testing): raise AssertionError naming what is wrong.
 
@@ -347,13 +325,7 @@ class World:
 
     def describe(self):
         """Return a :class:`Description` of this World: settings, colliders, filters, robot."""
-        options = self._rows.options
-        settings = {
-            'broad_phase': options.broad_phase, 'sphere_prefilter': options.sphere_prefilter,
-            'octree_max_depth': options.phase_settings.octree_max_depth,
-            'octree_leaf_cooldown_ticks': options.phase_settings.octree_leaf_cooldown_ticks,
-            'threads': self._workers.threads, 'margin': options.margin,
-            'continuous': options.continuous, 'continuous_tolerance': options.tolerance}
+        settings = dict(self._rows.options.settings(), threads=self._workers.threads)
         robot = self._robot.bodies
         return Description(settings, tuple(np.array(part) for part in self._scene.colliders),
                            self._filters_given, robot and robot.robot,
@@ -374,29 +346,3 @@ class World:
         """Stop the World's helper threads (none with ``threads=1``)."""
         self._workers.close()
 
-
-def _as_poses(poses):
-    """Return ``poses`` as a writable C-contiguous float64 (N, 7) array (no copy if it is)."""
-    if type(poses) is not np.ndarray or poses.dtype != np.float64 or poses.ndim != 2 \
-            or not poses.flags.c_contiguous or not poses.flags.writeable:
-        # Writable too: numba compiles a read-only array (a message's bytes) apart.
-        poses = np.require(poses, np.float64, ['C', 'A', 'W']).reshape(-1, 7)
-    if poses.shape[1] != 7:
-        raise ValueError('poses must have shape (N, 7) as x y z qx qy qz qw, got %s'
-                         % (poses.shape,))
-    return poses
-
-
-def _checked_tolerance(value):
-    tolerance = float(value)
-    if not 0.0 < tolerance <= MAX_COORDINATE:  # also refuses NaN
-        raise ValueError('continuous tolerance must be in (0, %g] m, got %r'
-                         % (MAX_COORDINATE, value))
-    return tolerance
-
-
-def _checked_margin(name, value):
-    margin = float(value)
-    if not 0.0 <= margin <= MAX_COORDINATE:  # also refuses NaN
-        raise ValueError('%s must be in [0, %g] m, got %r' % (name, MAX_COORDINATE, value))
-    return margin
