@@ -345,4 +345,3 @@ class World:
     def close(self):
         """Stop the World's helper threads (none with ``threads=1``)."""
         self._workers.close()
-
