@@ -34,15 +34,16 @@ class _Gathered:
     __slots__ = ('version', 'n_static', 'arguments', 'last_poses', 'last_half_extents',
                  'half_extents_shape', 'last_valid', 'result')
 
-    def __init__(self, version, n_static, arguments, last_poses, last_half_extents,
+    def __init__(self, version, n_static, arguments, last_poses, last_half_extents, last_valid,
                  half_extents_shape):
         self.version = version
         self.n_static = n_static
-        self.arguments = arguments  # check_scene's, after the input's
+        self.arguments = arguments  # check_scene's after the input's: (last, statics, rows,
+        # options), last made of the three arrays below
         self.last_poses = last_poses  # the last input checked, while last_valid[0] is 1
         self.last_half_extents = last_half_extents  # (1, 3) or (D, 3)
         self.half_extents_shape = half_extents_shape  # as the caller gives them
-        self.last_valid = np.zeros(1, np.int64)
+        self.last_valid = last_valid
         self.result = None  # its answer
 
 
@@ -74,9 +75,8 @@ class OnePass:
         """
         if half_extents.ndim == 1:
             half_extents = half_extents.reshape(1, 3)
-        contacts, counters, bad, code, invalid, same = check_scene(
-            poses, half_extents, gathered.last_poses, gathered.last_half_extents,
-            gathered.last_valid, *gathered.arguments)
+        contacts, counters, bad, code, invalid, same = check_scene(poses, half_extents,
+                                                                   *gathered.arguments)
         if same:
             return Result(gathered.result.contacts, reused(gathered.result.record))
         if bad >= 0:
@@ -97,26 +97,24 @@ class OnePass:
         """Gather what one-pass steps of ``count`` bodies read besides their input."""
         scene = self._scene
         scene.filter.check_count(count)
-        boxes = scene.rows_with_room(count)
-        arguments = (scene.count, scene.rows.by_id, boxes.centers, boxes.rotations,
-                     boxes.half_extents, boxes.aabbs, boxes.radii,
-                     *scene.margin_arguments(boxes), scene.options.sphere_prefilter,
-                     scene.filter_table(count))
-        return _Gathered(scene.version, scene.count, arguments, np.empty((count, 7)),
-                         np.empty(extents.shape), given_shape)
+        last = (np.empty((count, 7)), np.empty(extents.shape), np.zeros(1, np.int64))
+        return _Gathered(scene.version, scene.count, (last, scene.rows.by_id,
+                                                      scene.pass_rows(count),
+                                                      scene.pass_options(count)), *last,
+                         given_shape)
 
 
 class _StatesPass:
     """What batches of states read besides their input, for one version and body count."""
 
-    __slots__ = ('version', 'bodies', 'scene', 'own_margins', 'chunk_rows')
+    __slots__ = ('version', 'bodies', 'statics', 'options', 'chunk_rows')
 
-    def __init__(self, version, bodies, scene, own_margins, chunks):
+    def __init__(self, version, bodies, statics, options, chunks):
         self.version = version
         self.bodies = bodies
-        self.scene = scene  # (n_static, statics, margin, pad, sphere prefilter, filter table)
-        self.own_margins = own_margins
-        self.chunk_rows = [None] * chunks  # per chunk: Boxes with the static rows, then scratch
+        self.statics = statics  # small_scene's statics and options
+        self.options = options
+        self.chunk_rows = [None] * chunks  # per chunk: small_scene's rows, then scratch
 
 
 class Batches:
@@ -159,23 +157,17 @@ class Batches:
         states_pass = self._states_pass
         if states_pass is None or states_pass.version != scene.version \
                 or states_pass.bodies != bodies:
-            box_margins, margin, pad = scene.margin_arguments(scene.boxes)
             states_pass = self._states_pass = _StatesPass(
-                scene.version, bodies, (scene.count, scene.rows.by_id, margin, pad,
-                                        scene.options.sphere_prefilter,
-                                        scene.filter_table(bodies)),
-                box_margins is not None, scene.workers.max_chunks)
+                scene.version, bodies, scene.rows.by_id, scene.pass_options(bodies),
+                scene.workers.max_chunks)
 
         def chunk(index, first, stop):
             # Each chunk writes its states' boxes to rows of its own, after a copy of the
             # static rows (kept for the next batch of this version).
-            n_static, statics, margin, pad, prefilter, checked = states_pass.scene
             rows = states_pass.chunk_rows[index]
             if rows is None:
-                rows = states_pass.chunk_rows[index] = scene.rows_with_room(bodies)
-            return check(n_static, statics, rows.centers, rows.rotations, rows.half_extents,
-                         rows.aabbs, rows.radii, rows.margins if states_pass.own_margins
-                         else None, margin, pad, prefilter, checked, first, stop)
+                rows = states_pass.chunk_rows[index] = scene.pass_rows(bodies)
+            return check(states_pass.statics, rows, states_pass.options, first, stop)
 
         parts = scene.workers.map_ranges(chunk, count, MIN_STATES_PER_CHUNK)
         for contacts, _, state, body, code, invalid in parts:

@@ -117,9 +117,8 @@ def segment_contacts(world, bodies, waypoints, exact, found, keys):
 
 
 @kernel
-def check_joint_states(model_fields, base_pose, joint_states, n_static, statics, centers,
-                       rotations, extents, aabbs, radii, box_margins, margin, pad,
-                       sphere_prefilter, checked, first_state, stop_state):
+def check_joint_states(model_fields, base_pose, joint_states, statics, rows, options,
+                       first_state, stop_state):
     """Check joint states ``[first_state, stop_state)``: their box poses, then the one pass.
 
     One compiled call from joint values to contacts: the forward kinematics writes each
@@ -134,9 +133,8 @@ def check_joint_states(model_fields, base_pose, joint_states, n_static, statics,
     for k in range(first_state, stop_state):
         forward_kinematics(model, base_pose, joint_states[k], poses[k * count:(k + 1) * count],
                            link_rotations, link_translations)
-    return check_states(poses, count, model.half_extents, n_static, statics, centers, rotations,
-                        extents, aabbs, radii, box_margins, margin, pad, sphere_prefilter,
-                        checked, first_state, stop_state)
+    return check_states(poses, count, model.half_extents, statics, rows, options, first_state,
+                        stop_state)
 
 
 @kernel

@@ -158,15 +158,17 @@ class SceneRows:
         self.filtering = not (self.filter.is_default
                               and filters_nothing(rows.categories, rows.masks))
 
-    def margin_arguments(self, boxes):
-        """Return (box margins or None, margin or None, bound padding) for the SAT kernels.
+    def pass_rows(self, bodies):
+        """Return small_scene's ``rows``: a copy of the static rows with room for ``bodies``."""
+        boxes = self.boxes.grown(self.count + bodies, self.count)
+        return (boxes.centers, boxes.rotations, boxes.half_extents, boxes.aabbs, boxes.radii,
+                boxes.margins if self.rows.own_margins else None)
 
-        ``boxes``: the caller's copy of the static rows (:meth:`rows_with_room`).
-        """
-        own = self.rows.own_margins
+    def pass_options(self, bodies):
+        """Return small_scene's ``options`` for ``bodies`` bodies (its module docstring)."""
         margin = self.options.margin
-        return (boxes.margins if own else None, None if margin == 0.0 and not own
-                else margin, margin / 2)
+        return (None if margin == 0.0 and not self.rows.own_margins else margin, margin / 2,
+                self.options.sphere_prefilter, self.filter_table(bodies))
 
     def filter_table(self, count):
         """Return small_scene.checked_pairs for ``count`` bodies, or None: no filter at all."""
@@ -175,10 +177,6 @@ class SceneRows:
         filters = self.filter
         return checked_pairs(count, self.rows.by_id, filters.categories, filters.masks,
                              filters.ignored_keys, filters.dynamic_ignorable)
-
-    def rows_with_room(self, bodies):
-        """Return new Boxes holding a copy of the static rows and room for ``bodies`` more."""
-        return self.boxes.grown(self.count + bodies, self.count)
 
     def validate(self, colliders):
         """Check the rows against the scene's ``colliders``: raise AssertionError if stale."""
