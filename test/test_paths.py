@@ -137,3 +137,31 @@ def test_random_verbs_settings_and_checks_answer_as_a_fresh_world(seed):
             paths['batch'] += 1
         run.world.validate()
     assert min(paths.values()) > 5, paths  # each path ran, between changes of every kind
+
+
+def test_a_robot_between_verbs_and_steps_answers_as_a_fresh_world():
+    from collision_node.pipeline.robot import Robot
+    from collision_node.pipeline.warm_up import WARM_UP_ROBOT
+    robot = Robot.from_urdf(WARM_UP_ROBOT)
+    run = Run(7)
+    run.world.set_robot(robot, [1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0])
+    for _ in range(40):
+        what = run.rng.integers(4)
+        if what == 0:
+            run.verb()
+        q = run.rng.uniform(-2.0, 2.0, (3, robot.dof))
+        if what == 1:
+            result = run.world.check_joints(q)
+            assert same(result.contacts, run.fresh().check_joints(q).contacts)
+        elif what == 2:
+            poses = run.world.robot_poses(q[0])[0]
+            result = run.world.step(poses, robot.half_extents)
+            fresh = run.fresh()
+            if run.world.continuous and run.previous is not None:
+                fresh.step(run.previous, robot.half_extents)
+            assert same(result.contacts, fresh.step(poses, robot.half_extents).contacts)
+            run.previous = poses
+        elif what == 3:
+            result = run.world.check_trajectory(q)
+            assert same(result.contacts, run.fresh().check_trajectory(q).contacts)
+        run.world.validate()
