@@ -136,7 +136,10 @@ class GeneralPath:
             self._moved_to = scene.moved_version
 
     def step(self, poses, half_extents, previous, start):
-        """Collide the dynamic boxes as World.step does; ``previous`` the motion's start."""
+        """Collide the dynamic boxes as World.step does; ``previous`` the motion's start.
+
+        ``start`` the step's perf_counter at its call (the stats' times count from it).
+        """
         scene = self._scene
         self.sync()
         scene.filter.check_count(len(poses))

@@ -55,10 +55,11 @@ class OnePass:
         self._scene = scene
         self.gathered = None  # _Gathered of the last step
 
-    def step(self, poses, half_extents, start):
+    def step(self, poses, half_extents, previous, start):
         """Check ``poses`` (D, 7) with ``half_extents`` as World.step does, in one pass.
 
-        ``half_extents`` (3,) or (D, 3), checked as the World's step checks them.
+        The general path's interface: ``previous``, a continuous step's motion start, is
+        not read (the pass is discrete); ``start`` the step's perf_counter at its call.
         """
         gathered = self.gathered
         extents = per_body_extents(half_extents, len(poses))

@@ -288,13 +288,10 @@ class World:
         poses = as_poses(poses)
         half_extents = np.asarray(half_extents, dtype=np.float64)
         n, options = len(poses), self._rows.options
-        if not options.continuous and options.broad_phase in ONE_PASS_PHASES \
-                and n * (n - 1) // 2 + n * self._rows.count <= ONE_PASS_PAIRS:
-            path = self._one_pass
-            result = path.step(poses, half_extents, start)
-        else:
-            path = self._general
-            result = path.step(poses, half_extents, self._previous, start)
+        small = n * (n - 1) // 2 + n * self._rows.count <= ONE_PASS_PAIRS
+        in_one_pass = small and not options.continuous and options.broad_phase in ONE_PASS_PHASES
+        path = self._one_pass if in_one_pass else self._general
+        result = path.step(poses, half_extents, self._previous, start)
         self._previous = path.last_poses
         return result
 
