@@ -105,21 +105,22 @@ class Result:
 
 def _as_dict(record, contacts):
     """Return the public stats dict of ``record`` and its ``contacts``."""
-    record = Stats._make(record)
-    compared, candidates, filtered, sat_tests = record.counts
-    stats = {'broad_phase': record.broad_phase, 'dynamic_bodies': record.dynamic_bodies,
-             'static_bodies': record.static_bodies, 'compared': int(compared),
+    # Unpacked, not Stats._make(record): a NamedTuple's creation costs ~1 µs.
+    (broad_phase, dynamic_bodies, static_bodies, (compared, candidates, filtered, sat_tests),
+     was_reused, still_bodies, continuous, swept_pairs, advance_steps, unresolved_pairs,
+     phase_stats, prepare_ms, broad_ms, narrow_ms, total_ms, states) = record
+    stats = {'broad_phase': broad_phase, 'dynamic_bodies': dynamic_bodies,
+             'static_bodies': static_bodies, 'compared': int(compared),
              'candidate_pairs': int(candidates), 'filtered_pairs': int(filtered),
              'sat_tests': int(sat_tests)}
     stats.update(distance_stats(contacts))
-    stats.update(reused=record.reused, still_bodies=record.still_bodies,
-                 continuous=record.continuous, swept_pairs=record.swept_pairs,
-                 advance_steps=record.advance_steps, unresolved_pairs=record.unresolved_pairs,
-                 broad_phase_stats=dict(record.broad_phase_stats),
-                 prepare_ms=record.prepare_ms, broad_ms=record.broad_ms,
-                 narrow_ms=record.narrow_ms, total_ms=record.total_ms)
-    if record.states is not None:
-        stats['states'] = record.states
+    stats.update(reused=was_reused, still_bodies=still_bodies, continuous=continuous,
+                 swept_pairs=swept_pairs, advance_steps=advance_steps,
+                 unresolved_pairs=unresolved_pairs, broad_phase_stats=dict(phase_stats),
+                 prepare_ms=prepare_ms, broad_ms=broad_ms, narrow_ms=narrow_ms,
+                 total_ms=total_ms)
+    if states is not None:
+        stats['states'] = states
     return stats
 
 
