@@ -12,7 +12,7 @@ def test_export_writes_the_commits_package(tmp_path):
 
 
 def test_child_times_each_case_and_its_stages_in_the_given_tree_and_threads():
-    cases = ['uniform:20', 'low_motion:40', 'flying_out:30', 'teleport:20', 'count:20']
+    cases = ['uniform:20', 'low_motion:40', 'flying_out:30', 'teleport:20', 'count:20', 'arm:7']
     medians = against_commit.run_child(str(against_commit.REPO), [(c, 3) for c in cases], 2)
     assert set(medians) == set(cases)
     for row in medians.values():

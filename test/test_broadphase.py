@@ -12,7 +12,7 @@ import pytest
 
 from collision_node import World
 from collision_node.pipeline import contacts as contacts_module
-from collision_node.pipeline import world as world_module
+from collision_node.pipeline import general_path, scene_rows
 from collision_node.pipeline.broadphase import (check_settings, grid, make_broad_phase, NAMES,
                                                 Settings)
 from collision_node.pipeline.broadphase.auto import Auto, SWITCH_AFTER_TICKS
@@ -279,8 +279,8 @@ def test_many_ticks_of_moving_coming_and_going_bodies(name):
 def small_chunks(monkeypatch):
     """Chunks of a few items, so that the test scenes' loops are spread over threads."""
     monkeypatch.setattr(grid, 'MIN_BUCKETS_PER_CHUNK', 7)
-    monkeypatch.setattr(world_module, 'MIN_PAIRS_PER_CHUNK', 5)
-    monkeypatch.setattr(world_module, 'MIN_BODIES_PER_CHUNK', 3)
+    monkeypatch.setattr(general_path, 'MIN_PAIRS_PER_CHUNK', 5)
+    monkeypatch.setattr(scene_rows, 'MIN_BODIES_PER_CHUNK', 3)
     monkeypatch.setattr(contacts_module, 'MIN_PAIRS_PER_THREAD', 2)
 
 
@@ -451,11 +451,11 @@ def test_auto_does_not_flap_at_a_threshold_but_switches_at_once_when_far_off():
         shifted = dynamic_poses[:count] + [1e-6 * tick, 0, 0, 0, 0, 0, 0]
         names.append(world.step(shifted, extents[:count]).stats['broad_phase'])
     assert len(set(names)) == 1, 'flapped'
-    switches = world._phase.switches
+    switches = world._general.phase.switches
     for tick in range(SWITCH_AFTER_TICKS):  # clearly above: switches after a few ticks
         shifted = dynamic_poses[:1200] + [1e-6 * tick, 0, 0, 0, 0, 0, 0]
         names.append(world.step(shifted, extents[:1200]).stats['broad_phase'])
-    assert names[-1] == 'grid' and world._phase.switches <= switches + 1
+    assert names[-1] == 'grid' and world._general.phase.switches <= switches + 1
     small = world.step(dynamic_poses[:10], extents[:10])  # far below: at once
     assert small.stats['broad_phase'] == 'brute_force'
     large = world.step(dynamic_poses, extents)  # 6,000 bodies: no 8 ticks of brute force

@@ -156,7 +156,7 @@ def test_a_filter_change_is_seen_by_bodies_that_did_not_move():
     (lambda w: w.set_filters(ignored_pairs=[(-1, DYNAMIC, 0, DYNAMIC)]), 'ids must be'),
     (lambda w: w.set_filters(ignored_pairs=[(0, 5, 1, DYNAMIC)]), 'type must be'),
     (lambda w: w.set_static(POSES, [1, 1, 1], categories=[1, 2]), 'one value or one per box'),
-    (lambda w: w.set_static(POSES, [1, 1, 1], margins=-0.1), 'margin must be in'),
+    (lambda w: w.set_static(POSES, [1, 1, 1], margins=-0.1), 'margin must be a distance in'),
     (lambda w: w.step(POSES, [0.5] * 3) if w.set_filters(categories=[1, 2]) is None else 0,
      'collision_category has 2 values, the input 3 bodies'),
 ])

@@ -212,9 +212,9 @@ def test_the_margin_and_tolerance_rules_are_written_once():
 
 @pytest.mark.parametrize('value', [-0.1, float('nan'), float('inf')])
 def test_invalid_margins_are_refused(value):
-    with pytest.raises(ValueError, match='margin must be in'):
+    with pytest.raises(ValueError, match='margin must be a distance in'):
         World(margin=value)
     world = World()
-    with pytest.raises(ValueError, match='margin must be in'):
+    with pytest.raises(ValueError, match='margin must be a distance in'):
         world.margin = value
     assert world.margin == 0.0

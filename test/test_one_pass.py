@@ -15,10 +15,9 @@ import numpy as np
 import pytest
 
 from collision_node import World
-from collision_node.pipeline import scenes, world as world_module
+from collision_node.pipeline import one_pass, scenes, world as world_module
 from collision_node.pipeline.broadphase import NAMES
-from collision_node.pipeline.contacts import CONTACT_DTYPE, DYNAMIC, STATIC
-from collision_node.pipeline.small_scene import STATE_CONTACT_DTYPE
+from collision_node.pipeline.contacts import CONTACT_DTYPE, DYNAMIC, STATE_CONTACT_DTYPE, STATIC
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 IDENTITY = [0.0, 0.0, 0.0, 1.0]
@@ -206,7 +205,7 @@ def one_by_one(world_settings, states, extents):
 
 @pytest.mark.parametrize('threads', [1, 2])
 def test_check_states_answers_each_state_as_a_step_of_it_alone(threads, monkeypatch):
-    monkeypatch.setattr(world_module, 'MIN_STATES_PER_CHUNK', 16)  # several chunks
+    monkeypatch.setattr(one_pass, 'MIN_STATES_PER_CHUNK', 16)  # several chunks
     states = arm_states(300)
     extents = scenes.arm().dynamic_half_extents
     world = arm_world(threads=threads)

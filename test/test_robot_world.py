@@ -62,7 +62,7 @@ def test_check_joints_equals_step_on_the_box_poses(panda, settings):
     world = panda_world(panda, base, **settings)
     states = random_states(panda, 60, seed=1)
     contacts = world.check_joints(states).contacts
-    bodies = world._robot
+    bodies = world._robot.bodies
     for k, q in enumerate(states):
         step = world.step(bodies.poses(q)[0], panda.half_extents).contacts
         mine = contacts[contacts['state'] == k]
@@ -116,7 +116,7 @@ def test_a_bad_q_or_base_pose_is_refused_and_changes_nothing(panda):
         world.check_joints(q)
     with pytest.raises(ValueError, match='quaternion'):
         world.set_robot(panda, [0, 0, 0, 0, 0, 0, 0])
-    assert world._robot.base_pose.tolist() == [0, 0, 0, 0, 0, 0, 1]
+    assert world._robot.bodies.base_pose.tolist() == [0, 0, 0, 0, 0, 0, 1]
     with pytest.raises(ValueError, match='set_robot'):
         World().check_joints(np.zeros(panda.dof))
 

@@ -300,6 +300,6 @@ def test_validate_finds_a_row_that_lost_its_collider():
     world = World(broad_phase='brute_force')
     world.add_static([1, 2], [pose(0.0), pose(3.0)], [0.5, 0.5, 0.5])
     world.validate()
-    world._boxes.centers[0, 0] += 1e-9  # a static row no longer holds its collider's box
+    world._rows.boxes.centers[0, 0] += 1e-9  # a static row no longer holds its collider's box
     with pytest.raises(AssertionError, match='static row holds another centers'):
         world.validate()

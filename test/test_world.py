@@ -3,11 +3,11 @@ import numpy as np
 import pytest
 
 from collision_node import CONTACT_DTYPE, DYNAMIC, STATIC, World
-from collision_node.pipeline import world as world_module
+from collision_node.pipeline import general_path, scene_rows
 from collision_node.pipeline.broadphase import NAMES
+from collision_node.pipeline.general_path import Z_ORDER_MIN_TICKS
 from collision_node.pipeline.obb import MAX_COORDINATE, QUATERNION_NORM_TOLERANCE
 from collision_node.pipeline.scenes import uniform
-from collision_node.pipeline.world import Z_ORDER_MIN_TICKS
 from collision_node.pipeline.z_order import z_order, Z_ORDER_BITS
 
 IDENTITY = [0.0, 0.0, 0.0, 1.0]
@@ -157,7 +157,7 @@ def test_rows_are_sorted_again_once_the_bodies_travel(phase):
         if tick >= Z_ORDER_MIN_TICKS:  # then the bodies travel 3 m every tick
             poses[:, 0] += 3.0 * (tick - Z_ORDER_MIN_TICKS + 1)
         result = world.step(poses, scene.dynamic_half_extents)
-        rows.append(world._dynamic.ids.copy())
+        rows.append(world._general.dynamic.ids.copy())
         if tick % 7 == 0 or tick in (Z_ORDER_MIN_TICKS, 2 * Z_ORDER_MIN_TICKS):
             fresh = World(broad_phase='brute_force')
             fresh.set_static(scene.static_poses, scene.static_half_extents)
@@ -283,7 +283,7 @@ def test_a_refused_input_is_not_kept_for_the_bodies_that_did_not_change_back(
     # Only the bodies that moved are written to their rows; after a refused input the rows
     # before the bad body (and, on threads, other chunks' rows) hold it, so they must be
     # written again even where the next input equals the last accepted one.
-    monkeypatch.setattr(world_module, 'MIN_BODIES_PER_CHUNK', 16)
+    monkeypatch.setattr(scene_rows, 'MIN_BODIES_PER_CHUNK', 16)
     scene = uniform(400, seed=4)  # 200 dynamic bodies
     world = World(broad_phase='grid', threads=threads)
     reference = World(broad_phase='brute_force')
@@ -305,7 +305,7 @@ def test_a_refused_input_is_not_kept_for_the_bodies_that_did_not_change_back(
 
 
 def test_threads_name_the_first_invalid_body_whichever_chunk_met_it(monkeypatch):
-    monkeypatch.setattr(world_module, 'MIN_BODIES_PER_CHUNK', 8)
+    monkeypatch.setattr(scene_rows, 'MIN_BODIES_PER_CHUNK', 8)
     poses = np.array([pose(3.0 * k) for k in range(64)])
     poses[50, 0] = np.inf  # a later chunk, which a helper may well meet first
     poses[20, 3:] = 0.0
@@ -332,7 +332,7 @@ def test_pairs_sorted_by_row_give_the_same_contacts_to_the_bit(monkeypatch, marg
     for tick in range(4):
         results = {}
         for name, world in worlds.items():
-            monkeypatch.setattr(world_module, 'SORT_PAIRS_ROWS', 0 if name == 'sorted' else 10**9)
+            monkeypatch.setattr(general_path, 'SORT_PAIRS_ROWS', 0 if name == 'sorted' else 10**9)
             results[name] = world.step(scene.dynamic_poses(0.3 * tick),
                                        scene.dynamic_half_extents).contacts
         assert len(results['sorted']) > 100

@@ -19,8 +19,8 @@ shows between rounds.
 
 The base is exported with ``git archive`` into a temporary directory; a first untimed process
 per version fills its numba cache, so no round pays compile time. The child only uses
-``World``, ``warm_up`` and ``scenes.uniform`` and ``flying_out``, which every compared version
-has.
+``World``, ``warm_up`` and ``scenes.uniform``, ``flying_out`` and ``arm``, which every compared
+version has (``arm`` since the one pass).
 """
 import argparse
 import json
@@ -45,6 +45,8 @@ REPO = pathlib.Path(collision_node.__file__).resolve().parent.parent
 #               at 12 Hz
 #   teleport    the uniform scene's bodies at a random time each tick (no coherence at all)
 #   count       the uniform scene with one body more or fewer every tick
+#   arm         the arm of config/arm.yaml (its 7 links, whatever the bodies; its margins and
+#               filters) at 60 Hz: a small scene, the one pass
 CHILD = """
 import json, sys, time
 import numpy as np
@@ -71,9 +73,14 @@ medians = {}
 sizes, threads = json.loads(sys.argv[1])
 for case, ticks in sizes:
     name, n = case.split(':')
-    scene = scenes.flying_out(int(n), 0) if name == 'flying_out' else scenes.uniform(int(n), 0)
-    world = World(threads=threads)
-    if name != 'flying_out':
+    scene = scenes.flying_out(int(n), 0) if name == 'flying_out' else scenes.arm() \
+        if name == 'arm' else scenes.uniform(int(n), 0)
+    world = World(threads=threads, margin=0.05 if name == 'arm' else 0.0)
+    if name == 'arm':
+        world.set_static(scene.static_poses, scene.static_half_extents,
+                         margins=[0.0, 0.0, 0.05])
+        world.set_filters(ignored_pairs=[(i, 0, i + 1, 0) for i in range(6)] + [(0, 0, 0, 1)])
+    elif name != 'flying_out':
         world.set_static(scene.static_poses, scene.static_half_extents)
     times = []
     stages = []
@@ -143,7 +150,7 @@ def main(argv=None):
                 for stage in STAGE_KEYS)))
 
 
-SCENE_NAMES = ('uniform', 'low_motion', 'flying_out', 'teleport', 'count')
+SCENE_NAMES = ('uniform', 'low_motion', 'flying_out', 'teleport', 'count', 'arm')
 STAGE_KEYS = ('tick', 'prepare_ms', 'broad_ms', 'narrow_ms')
 STAGE_NAMES = ('tick', 'prepare', 'broad', 'narrow')
 

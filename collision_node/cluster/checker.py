@@ -27,8 +27,8 @@ import numpy as np
 import ray
 from ray.exceptions import OutOfMemoryError, RayActorError, WorkerCrashedError
 
+from collision_node.pipeline.contacts import STATE_CONTACT_DTYPE
 from collision_node.pipeline.obb import check_boxes, InvalidBox
-from collision_node.pipeline.small_scene import STATE_CONTACT_DTYPE
 from collision_node.pipeline.world import Result, World
 
 # Ray's guidance: a task under about 10 ms gains nothing from running remotely. A state of

@@ -24,6 +24,11 @@ CONTACT_DTYPE = np.dtype([
     ('distance', np.float64),
     ('toi', np.float64),
 ])
+# The contacts of a batch of states (World.check_states): each with its state's index, first
+# (it is the first sort key; and so the contacts' fields are not a prefix of these, which numba
+# would take for a subtype). Aligned: each float64 field at a multiple of 8, as the clouds'
+# writer reads them.
+STATE_CONTACT_DTYPE = np.dtype([('state', np.uint32)] + CONTACT_DTYPE.descr, align=True)
 
 # Contacts of one body are sorted by insertion sort up to this many, by np.argsort beyond
 # (a body usually touches a handful of others; a huge box may touch thousands).

@@ -31,7 +31,7 @@ import math
 import numpy as np
 
 from collision_node.pipeline._jit import kernel
-from collision_node.pipeline.contacts import DYNAMIC
+from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE
 from collision_node.pipeline.distance import box_distance
 from collision_node.pipeline.frames import matrix, relative_pose, sum_abs
 from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS
@@ -39,7 +39,7 @@ from collision_node.pipeline.robot import (box_frame, box_poses_of_states,
                                            forward_kinematics, IDENTITY_POSE, link_frames,
                                            link_transforms, RobotModel)
 from collision_node.pipeline.sat import COLLIDING, SEPARATED, separating_axis_test
-from collision_node.pipeline.small_scene import check_states, STATE_CONTACT_DTYPE
+from collision_node.pipeline.small_scene import check_states
 
 # What a segment's row takes from the exact contact at its toi, when its pair collides there.
 GEOMETRY = ('x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth', 'distance')
@@ -125,9 +125,8 @@ def segment_contacts(world, bodies, waypoints, exact, found, keys):
 
 
 @kernel
-def check_joint_states(model_fields, base_pose, joint_states, n_static, statics, centers,
-                       rotations, extents, aabbs, radii, box_margins, margin, pad,
-                       sphere_prefilter, checked, first_state, stop_state):
+def check_joint_states(model_fields, base_pose, joint_states, statics, rows, options,
+                       first_state, stop_state):
     """Check joint states ``[first_state, stop_state)``: their box poses, then the one pass.
 
     One compiled call from joint values to contacts: the forward kinematics writes each
@@ -142,9 +141,8 @@ def check_joint_states(model_fields, base_pose, joint_states, n_static, statics,
     for k in range(first_state, stop_state):
         forward_kinematics(model, base_pose, joint_states[k], poses[k * count:(k + 1) * count],
                            link_rotations, link_translations)
-    return check_states(poses, count, model.half_extents, n_static, statics, centers, rotations,
-                        extents, aabbs, radii, box_margins, margin, pad, sphere_prefilter,
-                        checked, first_state, stop_state)
+    return check_states(poses, count, model.half_extents, statics, rows, options, first_state,
+                        stop_state)
 
 
 @kernel

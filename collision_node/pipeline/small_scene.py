@@ -13,22 +13,25 @@ contacts.write_contact writes the rows; so its answers are the general path's to
 :func:`check_states` runs the same pass for K states of the same D bodies, each against the
 static boxes and independent of the others, into one array with each contact's state.
 
-The static boxes are read from the World's rows (written when the scene changed); what the
-pass needs of the static colliders besides their boxes comes as one int64 array ``statics``,
-one row per collider in id order: (row, id, category, mask, named in an ignored pair).
+The kernels take structures, as pynndescent's search takes one tree and its query: ``rows``
+the box rows, a copy of the scene's static rows 0..S-1 with room for the bodies after them,
+(centers, rotations, extents, aabbs, radii, margins or None: no collider has a margin of its
+own); ``statics`` what the pass needs of the static colliders besides their boxes, one int64
+row per static row in id order (row, id, category, mask, named in an ignored pair), so S is
+its length; ``options`` (margin or None: no margin at all, the bounds' padding, the sphere
+prefilter, the filter table or None: :func:`checked_pairs`); and ``last`` the last input
+checked (poses, half extents, valid). Plain tuples in these orders: numba types a NamedTuple
+argument from Python on every call, slowly (robot_bodies.RobotBodies.model_fields).
 """
 import numpy as np
 
 from collision_node.pipeline._jit import kernel
-from collision_node.pipeline.contacts import CONTACT_DTYPE, DYNAMIC, STATIC, write_contact
+from collision_node.pipeline.contacts import (CONTACT_DTYPE, DYNAMIC, STATE_CONTACT_DTYPE, STATIC,
+                                              write_contact)
 from collision_node.pipeline.filters import dynamic_bits, pair_checked, static_key
 from collision_node.pipeline.obb import aabbs_overlap, VALID, write_boxes
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 
-# The contacts of a batch: each with its state's index, first (it is the first sort key; and
-# so the contacts' fields are not a prefix of these, which numba would take for a subtype).
-# Aligned: each float64 field at a multiple of 8, as the clouds' writer reads them.
-STATE_CONTACT_DTYPE = np.dtype([('state', np.uint32)] + CONTACT_DTYPE.descr, align=True)
 # Columns of ``statics``.
 ROW, ID, CATEGORY, MASK, IGNORABLE = range(5)
 # Counters of one pass, as its stats array holds them.
@@ -51,26 +54,21 @@ def statics_table(rows_ids, categories, masks, ignorable):
 
 
 @kernel
-def check_scene(poses, half_extents, last_poses, last_half_extents, last_valid, n_static,
-                statics, centers, rotations, extents, aabbs, radii, box_margins, margin, pad,
-                sphere_prefilter, checked):
+def check_scene(poses, half_extents, last, statics, rows, options):
     """Check the D bodies of ``poses`` against each other and the static rows, in one pass.
 
-    Dynamic body i is written to row ``n_static + i``. ``half_extents`` has one row per body
-    or one for all; ``margin`` None (no margin at all) or the World's, ``box_margins`` None or
-    one per row, ``pad`` half the margin (the dynamic bounds' padding), ``checked`` the pairs
-    the filters let through (:func:`checked_pairs`; None: all). ``last_poses`` and
-    ``last_half_extents`` hold the last checked input when ``last_valid[0]`` is 1: the same
-    input again is not checked (``same`` 1); any other is copied there once checked.
-    Returns (contacts, (compared, candidates, filtered, SAT tests), first invalid body or -1,
-    its obb reason code, 1 if the SAT met NaN, same).
+    Dynamic body i is written to row S + i of ``rows``. ``half_extents`` has one row per body
+    or one for all. ``last`` (poses, half extents, valid) holds the last checked input when
+    valid[0] is 1: the same input again is not checked (``same`` 1); any other is copied there
+    once checked. Returns (contacts, (compared, candidates, filtered, SAT tests), first
+    invalid body or -1, its obb reason code, 1 if the SAT met NaN, same).
     """
+    last_poses, last_half_extents, last_valid = last
     if last_valid[0] == 1 and same_input(last_poses, poses, last_half_extents, half_extents):
         return np.empty(0, CONTACT_DTYPE), (0, 0, 0, 0), -1, VALID, 0, 1
     last_valid[0] = 0
     found, _, stats, _, bad, code, invalid = _check_states(
-        poses, len(poses), half_extents, n_static, statics, centers, rotations, extents,
-        aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked, 0, 1)
+        poses, len(poses), half_extents, statics, rows, options, 0, 1)
     count, ids, floats = found
     out = np.empty(count, CONTACT_DTYPE)
     _write_contacts(out, ids, floats, 0, count, statics, None)
@@ -83,18 +81,15 @@ def check_scene(poses, half_extents, last_poses, last_half_extents, last_valid, 
 
 
 @kernel
-def check_states(poses, bodies, half_extents, n_static, statics, centers, rotations, extents,
-                 aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked,
-                 first_state, stop_state):
+def check_states(poses, bodies, half_extents, statics, rows, options, first_state, stop_state):
     """Check states ``[first_state, stop_state)`` of ``poses`` ((K·D, 7), D = ``bodies``).
 
-    Each state's bodies are written to rows ``n_static ..`` of the given arrays (a chunk of
-    states owns its arrays) and checked as :func:`check_scene` does. Returns (contacts with
-    their state, stats, first invalid state, its body, reason code, SAT met NaN).
+    Each state's bodies are written to rows S .. of ``rows`` (a chunk of states owns its
+    rows) and checked as :func:`check_scene` does. Returns (contacts with their state, stats,
+    first invalid state, its body, reason code, SAT met NaN).
     """
     found, ends, stats, failed, bad, code, invalid = _check_states(
-        poses, bodies, half_extents, n_static, statics, centers, rotations, extents, aabbs,
-        radii, box_margins, margin, pad, sphere_prefilter, checked, first_state, stop_state)
+        poses, bodies, half_extents, statics, rows, options, first_state, stop_state)
     if bad >= 0 or invalid:
         return np.empty(0, STATE_CONTACT_DTYPE), stats, failed, bad, code, invalid
     count, ids, floats = found
@@ -149,9 +144,7 @@ def checked_pairs(bodies, statics, categories, masks, ignored_keys, dynamic_igno
 
 
 @kernel
-def _check_states(poses, bodies, half_extents, n_static, statics, centers, rotations, extents,
-                  aabbs, radii, box_margins, margin, pad, sphere_prefilter, checked,
-                  first_state, stop_state):
+def _check_states(poses, bodies, half_extents, statics, rows, options, first_state, stop_state):
     """Check states ``[first_state, stop_state)``; return their reported pairs.
 
     Returns ((count, ids, floats): the reported pairs in order, the end of each state's pairs
@@ -161,6 +154,9 @@ def _check_states(poses, bodies, half_extents, n_static, statics, centers, rotat
     as the general path orients it (contacts.orient_pairs). One call for all states: a
     call numba does not inline reference-counts every array it is handed.
     """
+    centers, rotations, extents, aabbs, radii, box_margins = rows
+    margin, pad, sphere_prefilter, checked = options
+    n_static = len(statics)
     most = bodies * (bodies - 1) // 2 + bodies * len(statics)  # pairs of one state
     # Allocated here on every call, not kept by the World: handed in from Python as kept
     # arrays, these nine cost more to unbox than to allocate (the arm's step: 6.1 µs, not 5.5).
@@ -175,7 +171,6 @@ def _check_states(poses, bodies, half_extents, n_static, statics, centers, rotat
     floats = np.empty((max(most, 1), _FLOATS))
     count = 0
     ends = np.empty(stop_state - first_state, np.int64)
-    # Counted in registers: an array element bumped per pair is a store per pair.
     compared = candidates = filtered = sat_tests = 0
     for state in range(first_state, stop_state):
         first = state * bodies
@@ -190,24 +185,11 @@ def _check_states(poses, bodies, half_extents, n_static, statics, centers, rotat
                     aabbs[i, 0, m] -= pad
                     aabbs[i, 1, m] += pad
                 radii[i] += pad
-        n = 0
-        for a in range(bodies):
-            row_a = n_static + a
-            # b: the dynamic bodies after a (by id), then the statics by id.
-            for j in range(a + 1, bodies + len(statics)):
-                row_b = n_static + j if j < bodies else statics[j - bodies, ROW]
-                compared += 1
-                if not aabbs_overlap(aabbs, row_a, row_b):
-                    continue
-                candidates += 1
-                if checked is not None and not checked[a, j]:
-                    filtered += 1
-                    continue
-                pairs[n, 0] = row_a
-                pairs[n, 1] = row_b
-                owner[n] = a
-                which[n] = j
-                n += 1
+        n, state_compared, state_candidates, state_filtered = _candidates(
+            aabbs, statics, bodies, checked, pairs, owner, which)
+        compared += state_compared
+        candidates += state_candidates
+        filtered += state_filtered
         sat_tests += collide_pair_rows(centers, rotations, extents, radii, pairs[:n],
                                        sphere_prefilter, margin, box_margins, status, depth,
                                        normal, point)
@@ -229,6 +211,37 @@ def _check_states(poses, bodies, half_extents, n_static, statics, centers, rotat
         ends[state - first_state] = count
     return ((count, ids, floats), ends, _stats(compared, candidates, filtered, sat_tests), -1,
             -1, VALID, 0)
+
+
+@kernel
+def _candidates(aabbs, statics, bodies, checked, pairs, owner, which):
+    """Write a state's pairs whose AABBs overlap and the filters let through to ``pairs``.
+
+    With each pair's body a (``owner``) and its b as the pass visits them (``which``): for
+    each body a by id, the dynamic bodies after it, then the statics by id. ``checked`` an
+    argument of its own, not an item of ``options``: numba compiles ``checked is not None``
+    out only for an argument. Returns (pairs, compared, candidates, filtered).
+    """
+    n_static = len(statics)
+    # Counted in registers: an array element bumped per pair is a store per pair.
+    n = compared = candidates = filtered = 0
+    for a in range(bodies):
+        row_a = n_static + a
+        for j in range(a + 1, bodies + n_static):
+            row_b = n_static + j if j < bodies else statics[j - bodies, ROW]
+            compared += 1
+            if not aabbs_overlap(aabbs, row_a, row_b):
+                continue
+            candidates += 1
+            if checked is not None and not checked[a, j]:
+                filtered += 1
+                continue
+            pairs[n, 0] = row_a
+            pairs[n, 1] = row_b
+            owner[n] = a
+            which[n] = j
+            n += 1
+    return n, compared, candidates, filtered
 
 
 @kernel

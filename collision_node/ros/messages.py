@@ -16,8 +16,7 @@ import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 
 from collision_node.pipeline._jit import kernel
-from collision_node.pipeline.contacts import CONTACT_DTYPE
-from collision_node.pipeline.small_scene import STATE_CONTACT_DTYPE
+from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
 from collision_node.ros.cdr import ENCAPSULATION_SIZE, point_cloud_parts, POINT_FIELD_DATATYPES
 
 

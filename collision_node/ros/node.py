@@ -77,10 +77,9 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from collision_node.pipeline.broadphase import NAMES
-from collision_node.pipeline.contacts import CONTACT_DTYPE
+from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
 from collision_node.pipeline.jit_progress import compile_progress
 from collision_node.pipeline.robot import Robot
-from collision_node.pipeline.small_scene import STATE_CONTACT_DTYPE
 from collision_node.pipeline.static_scene import InvalidCollider
 from collision_node.pipeline.warm_up import warm_up
 from collision_node.pipeline.world import World
