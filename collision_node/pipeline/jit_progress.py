@@ -68,6 +68,11 @@ class CompileProgress(event.Listener):
         if dispatcher in KERNELS and dispatcher not in self._ready_before:
             self._compiled.add(dispatcher)
 
+    @property
+    def compiled(self):
+        """How many kernels compiled so far."""
+        return len(self._compiled)
+
     def finish(self):
         """Report how many kernels compiled and how long it took, if any did."""
         if self._started_s is not None:

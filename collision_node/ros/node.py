@@ -67,13 +67,11 @@ from std_msgs.msg import Header, String
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
-from collision_node.pipeline.broadphase import NAMES
-from collision_node.pipeline.contacts import CONTACT_DTYPE
 from collision_node.pipeline.jit_progress import compile_progress
 from collision_node.pipeline.robot import Robot
 from collision_node.pipeline.small_scene import STATE_CONTACT_DTYPE
 from collision_node.pipeline.static_scene import InvalidCollider
-from collision_node.pipeline.warm_up import warm_up
+from collision_node.pipeline.warm_up import warm_up_in_background, warm_up_like
 from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import CdrError, parse_pose_array
@@ -81,7 +79,7 @@ from collision_node.ros.joints import JointInputError, JointValues
 from collision_node.ros.lifetime import InitError, RosProgram
 from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.memory import keep_heap_memory
-from collision_node.ros.messages import CloudWriter
+from collision_node.ros.messages import CloudWriter, compile_writer
 
 # Newest input wins (doc/design.md, "Topics"); reliable, because Fast DDS delivers nothing
 # best-effort once a PoseArray passes ~512 KB. Overridable through the qos_overrides.*
@@ -246,12 +244,17 @@ class CollisionNode(LifecycleNode):
             except Exception as error:  # noqa: B902 (as _on_model)
                 raise params.ParameterError('robot_description', str(error)) from None
 
+        # The kernels this configuration runs now; every other one (other settings, other
+        # body counts) in the background, from the activation on (pipeline.warm_up).
         start = time.perf_counter()
-        with compile_progress(self.get_logger().info):
-            compile_kernels()
+        with compile_progress(self.get_logger().info) as progress:
+            warm_up_like(world, config.dynamic_half_extents,
+                         robot if config.robot_description else None)
+            compile_writer()
+        self._background_warm_up = warm_up_in_background(compile_first=progress.compiled > 0)
         self._cloud_writer = CloudWriter()
-        self.get_logger().info('JIT warm-up of %d broad phases took %.2f s'
-                               % (len(NAMES), time.perf_counter() - start))
+        self.get_logger().info('JIT warm-up of the configured World took %.2f s'
+                               % (time.perf_counter() - start))
 
         self._monitor.scene(self._scene_version, config.colliders)
         if self._diagnostics_timer.timer_period_ns != round(1e9 * config.diagnostic_period_s):
@@ -879,14 +882,6 @@ def _change_colliders(world, old, new):
 def _ids(config):
     """Return each collider's (name, static id)."""
     return [(c.name, c.static_id) for c in config.colliders]
-
-
-def compile_kernels():
-    """Compile every kernel a tick can run, or load it from numba's cache."""
-    warm_up()
-    contacts = np.zeros(1, CONTACT_DTYPE)
-    contacts.flags.writeable = False  # as World.step returns them
-    CloudWriter().serialize(contacts, 0, 0, '')  # the cloud's kernel
 
 
 def main(args=None):
