@@ -36,9 +36,12 @@ Markers are built only while ``~/markers`` has a subscriber, at most 30 times a 
 at most a tenth of the node's time (see MARKER_COST_FACTOR). They are written as CDR bytes by
 :mod:`collision_node.ros.markers` (numpy, ~0.2 µs a marker instead of rclpy's ~13 µs).
 
-JIT. The kernels are compiled (or loaded from numba's cache) by a warm-up before the
-subscription exists, so no tick ever compiles; a compile is logged as it goes (about 30 s, once;
-.ci/setup-venv compiles ahead with collision_node.tools.compile_kernels). numba caches next to
+JIT. The kernels the configured World runs are compiled (or loaded from numba's cache) by a
+warm-up before the subscription exists (pipeline.warm_up.warm_up_like), so the first ticks do not
+compile; a compile is logged as it goes. The kernels of other settings and body counts are readied
+in the background from then on (warm_up_in_background: on a cold cache compiled in other
+processes, then loaded here), so that a later tick does not compile either. .ci/setup-venv
+compiles every kernel ahead with collision_node.tools.compile_kernels. numba caches next to
 the sources when that directory is writable and otherwise in its user-wide cache
 (~/.cache/numba); NUMBA_CACHE_DIR overrides both. The node leaves that choice to numba: the
 variable must be set before numba is imported, which is the launching environment's business,
