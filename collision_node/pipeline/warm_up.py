@@ -253,10 +253,12 @@ def _one_pass():
     """Run the one pass and batches of states without margins and with them."""
     # Two compiled variants: no margin at all, and margins (the World's, the colliders' own or
     # both: the same types); filters or none are the same types too (World._filter_table).
+    # Margins first: in compile_in_processes this section starts beside brute_force, which
+    # compiles the SAT without margins; each compiles its own, then loads the other's.
     scene = _Scene(WARM_UP_BODIES)
     extents = scene.dynamic_half_extents
     states = np.array([scene.dynamic_poses(t) for t in (0.0, 0.5)])
-    for margin in (0.0, 0.1):
+    for margin in (0.1, 0.0):
         world = World(broad_phase='brute_force', margin=margin)
         world.set_static(scene.static_poses, scene.static_half_extents)
         for sizes in (extents, extents[0]):
