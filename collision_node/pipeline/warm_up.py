@@ -25,7 +25,7 @@ from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.broadphase.auto import GRID_BODIES
 from collision_node.pipeline.contacts import (assemble_contacts, DYNAMIC, MIN_PAIRS_PER_THREAD,
                                               orient_pairs, STATIC)
-from collision_node.pipeline.jit_progress import compile_progress
+from collision_node.pipeline.jit_progress import compile_progress, REPORT_PERIOD_S
 from collision_node.pipeline.robot import Robot
 from collision_node.pipeline.sat import COLLIDING, empty_output
 from collision_node.pipeline.workers import Workers
@@ -142,11 +142,18 @@ def compile_in_processes(sections=None, processes=None, report=print, niceness=0
     names = list(SECTIONS if sections is None else sections)
     processes = max(1, min(len(names), processes or os.cpu_count()))
     start = time.monotonic()
-    kernels = 0
+    kernels = done = 0
     # spawn, not fork: a fork of a process that compiled (LLVM, numba's threads) is not safe.
     with multiprocessing.get_context('spawn').Pool(processes, os.nice, (niceness,)) as pool:
-        for done, (name, compiled, seconds) in enumerate(
-                pool.imap_unordered(_compile_section, names), 1):
+        finished = pool.imap_unordered(_compile_section, names)
+        while done < len(names):
+            try:
+                name, compiled, seconds = finished.next(timeout=REPORT_PERIOD_S)
+            except multiprocessing.TimeoutError:  # a line a period, as in a start's compile
+                report('%d of %d parts compiled, %.0f s so far'
+                       % (done, len(names), time.monotonic() - start))
+                continue
+            done += 1
             kernels += compiled
             report('compiled part %d of %d (%s: %d kernels, %.1f s), %.0f s so far' % (
                 done, len(names), name, compiled, seconds, time.monotonic() - start))
