@@ -6,8 +6,9 @@ margins, filters, continuous checks, moving colliders, threads, the robot) on sm
 scenes of its own, in SECTIONS that are independent of each other; the benchmarks call it
 before they time.
 
-A first start compiles for about two minutes of CPU (:func:`compile_in_processes` spreads the
-sections over processes: .ci/setup-venv does so through collision_node.tools.compile_kernels).
+Every section on a cold cache is about 100 s of CPU (2-vCPU Intel Xeon of the README), much of
+it the SAT and exact distances that every World runs; :func:`compile_in_processes` spreads the
+sections over processes (.ci/setup-venv does so through collision_node.tools.compile_kernels).
 The node needs less: :func:`warm_up_like` runs a copy of its configured World on its own
 bodies, so it subscribes once those kernels are ready, and :func:`warm_up_in_background`
 readies the rest while it answers (doc/design.md, JIT).
