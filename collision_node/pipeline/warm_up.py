@@ -169,7 +169,7 @@ def _compile_section(name):
     return name, progress.compiled, time.monotonic() - start
 
 
-def warm_up_in_background(compile_first, processes=None):
+def warm_up_in_background(compile_first, report=None, processes=None):
     """Ready every kernel in a thread of its own, while the process goes on; return the thread.
 
     ``compile_first``: the cache is probably cold (a start just compiled): the kernels are
@@ -177,17 +177,21 @@ def warm_up_in_background(compile_first, processes=None):
     that the compile holds neither this process's interpreter lock nor its CPU time. Then
     :func:`warm_up` in this process loads every kernel from numba's cache (about a second), so
     that no later tick waits for one. A tick that needs a kernel before that compiles or loads
-    it itself, as numba does on a first call. Kernels are the process's: a second call returns
-    the first call's thread.
+    it itself, as numba does on a first call. ``report(line)``, if given, hears when every
+    kernel is ready. Kernels are the process's: a second call returns the first call's thread.
     """
     global _background
     with _background_lock:
         if _background is None:
             def run():
+                start = time.monotonic()
                 if compile_first:
                     compile_in_processes(processes=processes, report=lambda line: None,
                                          niceness=BACKGROUND_NICENESS)
                 warm_up()
+                if report is not None:
+                    report('every other kernel ready, in the background in %.1f s'
+                           % (time.monotonic() - start))
 
             _background = threading.Thread(target=run, name='warm_up', daemon=True)
             _background.start()

@@ -254,7 +254,8 @@ class CollisionNode(LifecycleNode):
             warm_up_like(world, config.dynamic_half_extents,
                          robot if config.robot_description else None)
             compile_writer()
-        self._background_warm_up = warm_up_in_background(compile_first=progress.compiled > 0)
+        self._background_warm_up = warm_up_in_background(progress.compiled > 0,
+                                                         self.get_logger().info)
         self._cloud_writer = CloudWriter()
         self.get_logger().info('JIT warm-up of the configured World took %.2f s'
                                % (time.perf_counter() - start))
