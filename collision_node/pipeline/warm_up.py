@@ -93,13 +93,13 @@ def warm_up(sections=None):
         SECTIONS[name]()
 
 
-def warm_up_like(world, half_extents, robot=None, states=2):
+def warm_up_like(world, half_extents, robot=None):
     """Run a copy of ``world`` on bodies of ``half_extents``, as its first ticks will be run.
 
     The copy has the World's settings, static colliders, filters and robot (or ``robot``);
     its bodies ((D, 3): D bodies, (3,): WARM_UP_BODIES / 2) sit on the colliders, so that
     every stage of a step runs: boxes, pairs, SAT and contacts, a step again with half of them
-    moved, the same input again, and a batch of ``states`` states; with a robot, its joint
+    moved, the same input again, and both as a batch of states; with a robot, its joint
     states and a trajectory too. Compiles what a World so configured runs for inputs of that
     many bodies, and nothing else.
     """
@@ -117,7 +117,7 @@ def warm_up_like(world, half_extents, robot=None, states=2):
         moved[::2, 0] += 0.01
         for step_poses in (poses, moved, moved):  # the same input again: the answer reused
             twin.step(step_poses, sizes)
-        twin.check_states(np.array([poses, moved] * states)[:states], sizes)
+        twin.check_states(np.array([poses, moved]), sizes)
         robot = description.robot if robot is None else robot
         if robot is not None:
             twin.set_robot(robot)
@@ -169,7 +169,7 @@ def _compile_section(name):
     return name, progress.compiled, time.monotonic() - start
 
 
-def warm_up_in_background(compile_first, report=None, processes=None):
+def warm_up_in_background(compile_first, report=None):
     """Ready every kernel in a thread of its own, while the process goes on; return the thread.
 
     ``compile_first``: the cache is probably cold (a start just compiled): the kernels are
@@ -186,7 +186,7 @@ def warm_up_in_background(compile_first, report=None, processes=None):
             def run():
                 start = time.monotonic()
                 if compile_first:
-                    compile_in_processes(processes=processes, report=lambda line: None,
+                    compile_in_processes(report=lambda line: None,
                                          niceness=BACKGROUND_NICENESS)
                 warm_up()
                 if report is not None:
