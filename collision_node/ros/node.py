@@ -248,7 +248,7 @@ class CollisionNode(LifecycleNode):
                 raise params.ParameterError('robot_description', str(error)) from None
 
         # The kernels this configuration runs now; every other one (other settings, other
-        # body counts) in the background, from the activation on (pipeline.warm_up).
+        # body counts) in the background from here on, while the node answers (pipeline.warm_up).
         start = time.perf_counter()
         with compile_progress(self.get_logger().info) as progress:
             warm_up_like(world, config.dynamic_half_extents,
