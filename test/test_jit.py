@@ -7,15 +7,22 @@ filters set at run time) after the warm-up.
 
 Read-only installs are copies of the package that the test process cannot write to (for root,
 which ignores file modes, the child drops CAP_DAC_OVERRIDE before it starts).
+
+Processes filling one cache (compile_kernels' parallel parts) add to a kernel's index one at a
+time: a compile waits while another process holds the cache's lock.
 """
 import ctypes
+import fcntl
 import os
 import random
 import shutil
 import subprocess
 import sys
+import time
 
 import pytest
+
+from collision_node.pipeline._jit import CACHE_LOCK
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOMAIN_ID = random.Random(os.getpid() + 11).randint(1, 200)
@@ -53,6 +60,8 @@ per_body = room.dynamic_half_extents.ravel().tolist()
 nodes = [CollisionNode(parameter_overrides=colliders + [
              Parameter('dynamic.half_extents', value=sizes), Parameter('threads', value=threads)])
          for sizes, threads in ((one_size, 1), (per_body, 1), (one_size, 2))]
+for node in nodes:  # the kernels other settings need load in the background meanwhile
+    node._background_warm_up.join()
 before = compiled()
 for node in nodes:
     for name in NAMES:
@@ -211,3 +220,42 @@ def test_read_only_install_without_a_writable_home_still_caches(read_only_instal
     assert sat_cache_path == cache_path and not cache_path.startswith(str(home))
     assert any(f.startswith('obb.spheres_apart') for f in cache_files(cache_path))
     assert run_cache_check(install, home)[1] == 1  # loaded, not compiled, the second time
+
+
+# Compiles add_one for the type of sys.argv[2] (int or float) into NUMBA_CACHE_DIR.
+ADD_ONE = """
+import sys
+sys.path.insert(0, sys.argv[1])
+from add_one import add_one
+add_one(eval(sys.argv[2]))
+"""
+
+
+def test_a_compile_waits_to_add_to_an_index_another_process_holds(tmp_path):
+    """Two types of one kernel from two processes: the second waits, both end in the index."""
+    (tmp_path / 'add_one.py').write_text('from collision_node.pipeline._jit import kernel\n'
+                                         '@kernel\ndef add_one(x):\n    return x + 1\n')
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'cache'))
+
+    def compile_for(value):
+        return subprocess.Popen([sys.executable, '-c', ADD_ONE, str(tmp_path), value], cwd=REPO,
+                                env=env)
+
+    assert compile_for('1').wait(120) == 0
+    [index] = (tmp_path / 'cache').rglob('*.nbi')
+    with open(index.parent / CACHE_LOCK, 'a') as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # as another process adding to an index
+        waiting = compile_for('1.5')
+        time.sleep(10.0)  # the float type compiles in about a second, then waits for the lock
+        assert waiting.poll() is None, 'saved without the lock'
+        assert len(cache_files(tmp_path / 'cache')) == 2  # the int type's index and data
+    assert waiting.wait(120) == 0
+    assert len(cache_files(tmp_path / 'cache')) == 3  # and the float type's data
+    # Both types load from the one index: nothing compiles again.
+    for value in ('1', '1.5'):
+        done = subprocess.run(
+            [sys.executable, '-c', ADD_ONE + 'print(sum(add_one.stats.cache_hits.values()), '
+             'sum(add_one.stats.cache_misses.values()))', str(tmp_path), value],
+            cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.split() == ['1', '0']  # loaded, not compiled

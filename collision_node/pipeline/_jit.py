@@ -9,11 +9,22 @@ cache directory (~/.cache/numba), and NUMBA_CACHE_DIR overrides both. When none 
 writable (a read-only install run by a user without a writable home, e.g. a service), numba
 refuses to decorate a ``cache=True`` function at all; the kernels then cache in
 FALLBACK_CACHE_DIR, so the node still starts and a restart still loads instead of compiling.
+
+Several processes may fill one cache at once (collision_node.tools.compile_kernels compiles in
+parallel; a node may start meanwhile). numba writes each file whole (a temporary file, then a
+rename), so a reader never sees half a file; but it adds an entry to a kernel's index by
+reading the index, picking a free data file name and writing both back, and two processes
+adding different types of one kernel at once could both pick the same data file and leave an
+index that names the other's code. :func:`_locked` makes that read-modify-write one step: a
+process holds CACHE_LOCK (an flock beside the index) from reading the index to writing it.
 """
+import fcntl
+import functools
 import os
 import tempfile
 
 import numba
+from numba.core.caching import IndexDataCacheFile
 
 JIT_OPTIONS = {
     'cache': True,            # ~0.2 s to load a warm cache instead of ~6 s to compile
@@ -25,6 +36,7 @@ JIT_OPTIONS = {
 # One directory per user: another user's cache directory would not be writable.
 FALLBACK_CACHE_DIR = os.path.join(tempfile.gettempdir(),
                                   'collision_node-numba-cache-%d' % os.getuid())
+CACHE_LOCK = 'collision_node.lock'  # in each cache directory: see _locked
 # Every kernel decorated so far (numba dispatchers), for the compile progress to count
 # (collision_node.pipeline.jit_progress).
 KERNELS = set()
@@ -50,3 +62,16 @@ def _njit(function, options):
         return numba.njit(**options)(function)
     finally:
         numba.config.CACHE_DIR = previous
+
+
+def _locked(save):
+    """Wrap numba's IndexDataCacheFile.save so that one process at a time adds to an index."""
+    @functools.wraps(save)
+    def locked_save(self, key, data):
+        with open(os.path.join(self._cache_path, CACHE_LOCK), 'a') as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released as the file closes
+            save(self, key, data)
+    return locked_save
+
+
+IndexDataCacheFile.save = _locked(IndexDataCacheFile.save)

@@ -1,8 +1,9 @@
 """Progress lines while numba compiles the package's kernels, for whoever waits on a start.
 
-numba compiles a kernel on its first call, or loads it from its cache. Compiling all of them
-takes about 30 s on the 2-vCPU machine of doc/benchmarks.md (with the node's warm-up
-printing nothing, a first start looked hung); loading them takes 0.2 s. numba announces
+numba compiles a kernel on its first call, or loads it from its cache. Compiling what a node
+configured as config/arm.yaml runs takes about 35 s of CPU on the 2-vCPU Intel Xeon of the
+README (with the node's warm-up printing nothing, a first start looked hung); loading it takes
+a fraction of a second. numba announces
 only compiling (its ``numba:compile`` event; a load from the cache is silent), so a start
 that finds every kernel in the cache reports nothing at all::
 
@@ -67,6 +68,11 @@ class CompileProgress(event.Listener):
         dispatcher = compile_event.data['dispatcher']
         if dispatcher in KERNELS and dispatcher not in self._ready_before:
             self._compiled.add(dispatcher)
+
+    @property
+    def compiled(self):
+        """How many kernels compiled so far."""
+        return len(self._compiled)
 
     def finish(self):
         """Report how many kernels compiled and how long it took, if any did."""

@@ -87,8 +87,6 @@ class RobotPath:
         scene = self._scene
         count, statics = bodies.count, scene.rows.by_id
         checked = scene.filter_table(count)
-        if checked is None:
-            checked = np.ones((count, count + len(statics)), np.bool_)
         a, j = np.nonzero(np.triu(checked, 1))  # the pass's order: a, then its b's
         static = j >= count
         rows, types, ids = j.copy(), np.full(len(j), DYNAMIC, np.int64), j.copy()

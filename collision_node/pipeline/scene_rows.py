@@ -159,21 +159,33 @@ class SceneRows:
                               and filters_nothing(rows.categories, rows.masks))
 
     def pass_rows(self, bodies):
-        """Return small_scene's ``rows``: a copy of the static rows with room for ``bodies``."""
+        """Return small_scene's ``rows``: a copy of the static rows with room for ``bodies``.
+
+        With any margin the box margins go too, as the general path passes them, even when no
+        collider has one of its own (it adds 0.0: no bit changes): one compiled variant of
+        the one pass fewer.
+        """
         boxes = self.boxes.grown(self.count + bodies, self.count)
         return (boxes.centers, boxes.rotations, boxes.half_extents, boxes.aabbs, boxes.radii,
-                boxes.margins if self.rows.own_margins else None)
+                None if self._no_margin() else boxes.margins)
 
     def pass_options(self, bodies):
         """Return small_scene's ``options`` for ``bodies`` bodies (its module docstring)."""
         margin = self.options.margin
-        return (None if margin == 0.0 and not self.rows.own_margins else margin, margin / 2,
+        return (None if self._no_margin() else margin, margin / 2,
                 self.options.sphere_prefilter, self.filter_table(bodies))
 
+    def _no_margin(self):
+        return self.options.margin == 0.0 and not self.rows.own_margins
+
     def filter_table(self, count):
-        """Return small_scene.checked_pairs for ``count`` bodies, or None: no filter at all."""
+        """Return small_scene.checked_pairs for ``count`` bodies (all True: no filter at all).
+
+        A table even without filters, not None: the one pass then compiles one variant fewer
+        (half a first start's compile of it), for a load per candidate pair.
+        """
         if not self.filtering:
-            return None
+            return np.ones((count, count + len(self.rows.by_id)), np.bool_)
         filters = self.filter
         return checked_pairs(count, self.rows.by_id, filters.categories, filters.masks,
                              filters.ignored_keys, filters.dynamic_ignorable)

@@ -1,11 +1,24 @@
 """Compile every kernel a tick can run, before the first tick.
 
 numba compiles a kernel (or loads it from its cache) on its first call with each type
-signature. The node calls :func:`warm_up` before it subscribes, the benchmarks before they
-time: it runs every broad phase and every mode of the World (still bodies, margins, filters,
-continuous checks, moving colliders, threads) on a small random scene of its own.
+signature. :func:`warm_up` runs every broad phase and every mode of the World (still bodies,
+margins, filters, continuous checks, moving colliders, threads, the robot) on small random
+scenes of its own, in SECTIONS that are independent of each other; the benchmarks call it
+before they time.
+
+Every section on a cold cache is about 100 s of CPU (2-vCPU Intel Xeon of the README), much of
+it the SAT and exact distances that every World runs; :func:`compile_in_processes` spreads the
+sections over processes (.ci/setup-venv does so through collision_node.tools.compile_kernels).
+The node needs less: :func:`warm_up_like` runs a copy of its configured World on its own
+bodies, so it subscribes once those kernels are ready, and :func:`warm_up_in_background`
+readies the rest while it answers (doc/design.md, JIT).
 """
+import functools
 import itertools
+import multiprocessing
+import os
+import threading
+import time
 
 import numpy as np
 
@@ -13,11 +26,13 @@ from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.broadphase.auto import GRID_BODIES
 from collision_node.pipeline.contacts import (assemble_contacts, DYNAMIC, MIN_PAIRS_PER_THREAD,
                                               orient_pairs, STATIC)
+from collision_node.pipeline.jit_progress import compile_progress, REPORT_PERIOD_S
 from collision_node.pipeline.robot import Robot
 from collision_node.pipeline.sat import COLLIDING, empty_output
 from collision_node.pipeline.workers import Workers
 from collision_node.pipeline.world import ONE_PASS_PAIRS, ONE_PASS_PHASES, World
 
+BACKGROUND_NICENESS = 10  # the background compile yields the CPUs to the node's ticks
 WARM_UP_BODIES = 64  # half static: enough for every broad phase to run its full code path
 AUTO_SPREAD_BODIES = 2 * GRID_BODIES  # auto measures the boxes' spread from this many bodies
 # Half static, half dynamic (n/2 · (n/2 - 1) / 2 + n²/4 pairs): past ONE_PASS_PAIRS.
@@ -72,38 +87,167 @@ class _Scene:
         return poses
 
 
-def warm_up():
-    """Run every broad phase and mode on a small scene, so that no later tick compiles."""
+def warm_up(sections=None):
+    """Run ``sections`` (names of SECTIONS; None: all), so that no later tick compiles."""
+    for name in SECTIONS if sections is None else sections:
+        SECTIONS[name]()
+
+
+def warm_up_like(world, half_extents, robot=None):
+    """Run a copy of ``world`` on bodies of ``half_extents``, as its first ticks will be run.
+
+    The copy has the World's settings, static colliders, filters and robot (or ``robot``);
+    its bodies ((D, 3): D bodies, (3,): WARM_UP_BODIES / 2) sit on the colliders, so that
+    every stage of a step runs: boxes, pairs, SAT and contacts, a step again with half of them
+    moved, the same input again, and both as a batch of states; with a robot, its joint
+    states and a trajectory too. Compiles what a World so configured runs for inputs of that
+    many bodies, and nothing else.
+    """
+    sizes = np.asarray(half_extents, float)
+    count = len(sizes) if sizes.ndim == 2 else WARM_UP_BODIES // 2
+    description = world.describe()
+    twin = World.from_description(description)
+    try:
+        poses = _Scene(2 * count).dynamic_poses(0.0)
+        colliders = description.colliders[1]
+        if len(colliders):  # on the colliders, one after another
+            poses[:, :3] = colliders[np.arange(count) % len(colliders), :3]
+        poses[:, :3] += 0.05 * np.arange(count)[:, None]  # apart a little: every pair differs
+        moved = poses.copy()
+        moved[::2, 0] += 0.01
+        for step_poses in (poses, moved, moved):  # the same input again: the answer reused
+            twin.step(step_poses, sizes)
+        twin.check_states(np.array([poses, moved]), sizes)
+        robot = description.robot if robot is None else robot
+        if robot is not None:
+            twin.set_robot(robot)
+            still = np.zeros(robot.dof)
+            twin.check_joints(still)
+            twin.step(twin.robot_poses(still), robot.half_extents)  # joint_states
+            twin.check_trajectory(np.array([still, still + 0.1]))
+    finally:
+        twin.close()
+
+
+def compile_in_processes(sections=None, processes=None, report=print, niceness=0):
+    """Compile (or load) the kernels of ``sections`` (None: all) into numba's cache.
+
+    The sections run in ``processes`` new processes (None: one a CPU), heaviest first, a
+    process taking the next section when it is done with one. The kernels end up in numba's
+    cache, not in this process. Two processes that compile the same kernel (the SAT under
+    every section, say) both write it: numba writes whole files, and _jit serializes the
+    writes to one kernel's index. ``report(line)`` hears a line as each section is done;
+    the processes run ``niceness`` below this one's priority. Returns how many kernels
+    compiled (a kernel compiled by two processes counts twice).
+    """
+    names = list(SECTIONS if sections is None else sections)
+    processes = max(1, min(len(names), processes or os.cpu_count()))
+    start = time.monotonic()
+    kernels = done = 0
+    # spawn, not fork: a fork of a process that compiled (LLVM, numba's threads) is not safe.
+    with multiprocessing.get_context('spawn').Pool(processes, os.nice, (niceness,)) as pool:
+        finished = pool.imap_unordered(_compile_section, names)
+        while done < len(names):
+            try:
+                name, compiled, seconds = finished.next(timeout=REPORT_PERIOD_S)
+            except multiprocessing.TimeoutError:  # a line a period, as in a start's compile
+                report('%d of %d parts compiled, %.0f s so far'
+                       % (done, len(names), time.monotonic() - start))
+                continue
+            done += 1
+            kernels += compiled
+            report('compiled part %d of %d (%s: %d kernels, %.1f s), %.0f s so far' % (
+                done, len(names), name, compiled, seconds, time.monotonic() - start))
+    return kernels
+
+
+def _compile_section(name):
+    """Run section ``name``; return its name, the kernels it compiled and its time in s."""
+    start = time.monotonic()
+    with compile_progress(lambda line: None) as progress:
+        SECTIONS[name]()
+    return name, progress.compiled, time.monotonic() - start
+
+
+def warm_up_in_background(compile_first, report=None):
+    """Ready every kernel in a thread of its own, while the process goes on; return the thread.
+
+    ``compile_first``: the cache is probably cold (a start just compiled): the kernels are
+    first compiled in other processes (:func:`compile_in_processes`, at a lower priority), so
+    that the compile holds neither this process's interpreter lock nor its CPU time. Then
+    :func:`warm_up` in this process loads every kernel from numba's cache (about a second), so
+    that no later tick waits for one. A tick that needs a kernel before that compiles or loads
+    it itself, as numba does on a first call. ``report(line)``, if given, hears when every
+    kernel is ready. Kernels are the process's: a second call returns the first call's thread.
+    """
+    global _background
+    with _background_lock:
+        if _background is None:
+            def run():
+                start = time.monotonic()
+                if compile_first:
+                    compile_in_processes(report=lambda line: None,
+                                         niceness=BACKGROUND_NICENESS)
+                warm_up()
+                if report is not None:
+                    report('every other kernel ready, in the background in %.1f s'
+                           % (time.monotonic() - start))
+
+            _background = threading.Thread(target=run, name='warm_up', daemon=True)
+            _background.start()
+        return _background
+
+
+_background = None  # the process's background warm-up thread, once one started
+_background_lock = threading.Lock()
+
+
+def _broad_phase(name):
+    """Run broad phase ``name`` in every mode on the small scene, then past the one pass."""
     scene = _Scene(WARM_UP_BODIES)
     extents = scene.dynamic_half_extents
-    for name in NAMES:
-        for statics in (True, False):
-            world = World(broad_phase=name)
-            if statics:
-                world.set_static(scene.static_poses, scene.static_half_extents)
-            for sphere_prefilter in (True, False):
-                world.sphere_prefilter = sphere_prefilter
-                # Bodies move between steps so that update paths (bodies leaving their cell or
-                # leaf) run too, and half of them only, so that still bodies keep their
-                # contacts; one size per body, then one size for all, one body, none.
-                world.step(scene.dynamic_poses(0.0), extents)
-                world.step(scene.half_moved(0.5), extents)
-                world.step(scene.dynamic_poses(1.0), extents[0])
-                world.step(scene.half_moved(1.0), extents[0])
-                world.step(scene.dynamic_poses(1.5)[:1], extents[0])
-                world.step(np.zeros((0, 7)), extents[0])
+    for statics in (True, False):
+        world = World(broad_phase=name)
+        if statics:
+            world.set_static(scene.static_poses, scene.static_half_extents)
+        for sphere_prefilter in (True, False):
+            world.sphere_prefilter = sphere_prefilter
+            # Bodies move between steps so that update paths (bodies leaving their cell or
+            # leaf) run too, and half of them only, so that still bodies keep their
+            # contacts; one size per body, then one size for all, one body, none.
+            world.step(scene.dynamic_poses(0.0), extents)
+            world.step(scene.half_moved(0.5), extents)
+            world.step(scene.dynamic_poses(1.0), extents[0])
+            world.step(scene.half_moved(1.0), extents[0])
+            world.step(scene.dynamic_poses(1.5)[:1], extents[0])
+            world.step(np.zeros((0, 7)), extents[0])
+    # Colliders that moved under still bodies: a little (kept in every phase's structure),
+    # then far (loose in the grid and the octree: paired by the World itself).
+    ids = np.arange(len(scene.static_poses))
+    world = World(broad_phase=name)
+    world.set_static(scene.static_poses, scene.static_half_extents)
+    world.step(scene.dynamic_poses(0.0), extents)
+    moved = scene.static_poses.copy()
+    for shift in (1e-3, 2.0):
+        moved[:2, 0] += shift
+        world.move_static(ids, moved)
+        world.step(scene.half_moved(0.5), extents)
     # Brute force and auto past the one-pass pairs (their general path), and auto measuring
     # the boxes' spread (from AUTO_SPREAD_BODIES bodies on).
-    for bodies, names in ((ONE_PASS_BODIES, ONE_PASS_PHASES), (AUTO_SPREAD_BODIES, ('auto',))):
+    sizes = (ONE_PASS_BODIES,) if name in ONE_PASS_PHASES else ()
+    for bodies in sizes + ((AUTO_SPREAD_BODIES,) if name == 'auto' else ()):
         large = _Scene(bodies)
-        for name in names:
-            world = World(broad_phase=name)
-            world.set_static(large.static_poses, large.static_half_extents)
-            world.step(large.dynamic_poses(0.0), large.dynamic_half_extents)
-            world.step(large.half_moved(0.5), large.dynamic_half_extents)
-    # Margins (padded bounds, exact distances), the World's alone, then with the colliders'
-    # own, and filters (masks per body, ignored pairs): in one pass and past it.
-    for margins in (scene, _Scene(ONE_PASS_BODIES)):
+        world = World(broad_phase=name)
+        world.set_static(large.static_poses, large.static_half_extents)
+        world.step(large.dynamic_poses(0.0), large.dynamic_half_extents)
+        world.step(large.half_moved(0.5), large.dynamic_half_extents)
+
+
+def _margins():
+    """Run margins (padded bounds, exact distances) and filters, in one pass and past it."""
+    # The World's margin alone, then with the colliders' own, and filters (masks per body,
+    # ignored pairs).
+    for margins in (_Scene(WARM_UP_BODIES), _Scene(ONE_PASS_BODIES)):
         sizes = margins.dynamic_half_extents
         world = World(broad_phase='brute_force', margin=0.1)
         world.set_static(margins.static_poses, margins.static_half_extents)
@@ -115,19 +259,29 @@ def warm_up():
                           ignored_pairs=[(0, DYNAMIC, 1, DYNAMIC), (0, DYNAMIC, 0, STATIC)])
         world.step(margins.dynamic_poses(0.0), sizes)
         world.step(margins.half_moved(0.5), sizes)
-    # The one pass and batches of states in every combination of margins (the World's, the
-    # colliders' own) and filters: each is a compiled variant of its own.
+
+
+def _one_pass():
+    """Run the one pass and batches of states without margins and with them."""
+    # Two compiled variants: no margin at all, and margins (the World's, the colliders' own or
+    # both: the same types); filters or none are the same types too (SceneRows.filter_table).
+    # Margins first: in compile_in_processes this section starts beside brute_force, which
+    # compiles the SAT without margins; each compiles its own, then loads the other's.
+    scene = _Scene(WARM_UP_BODIES)
+    extents = scene.dynamic_half_extents
     states = np.array([scene.dynamic_poses(t) for t in (0.0, 0.5)])
-    for margin, own, filters in itertools.product((0.0, 0.1), (0.0, 0.05), (False, True)):
+    for margin in (0.1, 0.0):
         world = World(broad_phase='brute_force', margin=margin)
-        world.set_static(scene.static_poses, scene.static_half_extents, margins=own)
-        if filters:
-            world.set_filters(ignored_pairs=[(0, DYNAMIC, 1, DYNAMIC)])
+        world.set_static(scene.static_poses, scene.static_half_extents)
         for sizes in (extents, extents[0]):
             world.step(states[0], sizes)
             world.check_states(states, sizes)
-    # Continuous checking (swept bounds, advancement, pairs touching only in between), with
-    # and without margins: a bullet through a wall besides the scene.
+
+
+def _continuous():
+    """Run continuous checks (swept bounds, advancement, pairs touching only in between)."""
+    # With and without margins: a bullet through a wall besides the scene.
+    scene = _Scene(WARM_UP_BODIES)
     bullet = np.array([[0.0, 0.0, -2.0, 0.0, 0.0, 0.0, 1.0]])
     poses = [np.concatenate([scene.dynamic_poses(t), bullet + [[0.0, 0.0, 4.0 * t] + [0.0] * 4]])
              for t in (0.0, 0.5, 1.0)]
@@ -138,6 +292,10 @@ def warm_up():
                          margins=margin)
         for step_poses in poses:
             world.step(step_poses, [0.05, 0.05, 0.05])
+
+
+def _large_ticks():
+    """Sort candidate pairs and list contacts over threads, as only large ticks do."""
     # Candidate pairs sorted by row, which only scenes of SORT_PAIRS_ROWS boxes are.
     pairs = np.array([[0, 1]])
     orient_pairs(pairs, 0, np.arange(2), np.zeros(3, np.int64), pairs.copy())
@@ -152,30 +310,37 @@ def warm_up():
     assemble_contacts(pairs, status, depth, normal, point, 1, 2, np.zeros(1, np.int64),
                       np.arange(2), workers=workers)
     workers.close()
-    # Colliders that moved under still bodies: a little (kept in every phase's structure),
-    # then far (loose in the grid and the octree: paired by the World itself).
-    ids = np.arange(len(scene.static_poses))
-    for name in NAMES:
-        world = World(broad_phase=name)
-        world.set_static(scene.static_poses, scene.static_half_extents)
-        world.step(scene.dynamic_poses(0.0), extents)
-        moved = scene.static_poses.copy()
-        for shift in (1e-3, 2.0):
-            moved[:2, 0] += shift
-            world.move_static(ids, moved)
-            world.step(scene.half_moved(0.5), extents)
-    # The robot model's forward kinematics: one state, a batch, the link frames; then the
-    # robot in a World: joint states and trajectories with and without margins, a robot
-    # with pairs to leave out (a filter table) and one with none (no table).
+
+
+def _robot():
+    """Run the robot model's forward kinematics, then the robot in a World."""
+    # One state, a batch, the link frames; then joint states and trajectories with and
+    # without margins (the World's or the colliders' own: the same types), a robot with pairs
+    # to leave out and one with none.
+    scene = _Scene(WARM_UP_BODIES)
     robot = Robot.from_urdf(WARM_UP_ROBOT)
     robot.box_poses(np.zeros(robot.dof))
     robot.box_poses(np.zeros((2, robot.dof)))
     robot.link_poses(np.zeros(robot.dof))
     lone_box = Robot.from_urdf(WARM_UP_ROBOT.split('<link name="arm">')[0] + '</robot>')
-    for margin, own, arm in itertools.product((0.0, 0.1), (0.0, 0.05), (robot, lone_box)):
+    for margin, arm in itertools.product((0.0, 0.1), (robot, lone_box)):
         world = World(margin=margin)
-        world.set_static(scene.static_poses, scene.static_half_extents, margins=own)
+        world.set_static(scene.static_poses, scene.static_half_extents)
         world.set_robot(arm)
         world.check_joints(np.zeros(arm.dof))
         world.step(world.robot_poses(np.zeros(arm.dof)), arm.half_extents)  # joint_states
         world.check_trajectory(np.linspace(0.0, 0.1, 2 * arm.dof).reshape(2, arm.dof))
+
+
+# Every part of the warm-up by name, each independent of the others; heaviest first (CPU s
+# on a cold cache, Intel Xeon), so that processes taking them in turn end together.
+SECTIONS = {
+    'one_pass': _one_pass,  # 20: six variants of the one pass, each twice (a state, a batch)
+    'brute_force': functools.partial(_broad_phase, 'brute_force'),  # 28, with the SAT's
+    'margins': _margins,  # 21
+    'robot': _robot,  # 17
+    'octree': functools.partial(_broad_phase, 'octree'),  # 13
+    'continuous': _continuous,  # 6
+    **{name: functools.partial(_broad_phase, name) for name in NAMES},  # 0.1-3.5 each
+    'large_ticks': _large_ticks,  # 0.5
+}

@@ -81,6 +81,13 @@ def serialize_collisions(contacts, sec, nanosec, frame_id):
     return CloudWriter().serialize(contacts, sec, nanosec, frame_id)
 
 
+def compile_writer():
+    """Compile the clouds' kernel, or load it from numba's cache."""
+    contacts = np.zeros(1, CONTACT_DTYPE)
+    contacts.flags.writeable = False  # as World.step returns them
+    CloudWriter().serialize(contacts, 0, 0, '')
+
+
 class CloudWriter:
     """Writes clouds of contacts of one dtype as CDR bytes, into one buffer kept call to call.
 

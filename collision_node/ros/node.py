@@ -42,9 +42,12 @@ Markers are built only while ``~/markers`` has a subscriber, at most 30 times a 
 at most a tenth of the node's time (see MARKER_COST_FACTOR). They are written as CDR bytes by
 :mod:`collision_node.ros.markers` (numpy, ~0.2 µs a marker instead of rclpy's ~13 µs).
 
-JIT. The kernels are compiled (or loaded from numba's cache) by a warm-up before the
-subscription exists, so no tick ever compiles; a compile is logged as it goes (about 30 s, once;
-.ci/setup-venv compiles ahead with collision_node.tools.compile_kernels). numba caches next to
+JIT. The kernels the configured World runs are compiled (or loaded from numba's cache) by a
+warm-up before the subscription exists (pipeline.warm_up.warm_up_like), so the first ticks do not
+compile; a compile is logged as it goes. The kernels of other settings and body counts are readied
+in the background from then on (warm_up_in_background: on a cold cache compiled in other
+processes, then loaded here), so that a later tick does not compile either. .ci/setup-venv
+compiles every kernel ahead with collision_node.tools.compile_kernels. numba caches next to
 the sources when that directory is writable and otherwise in its user-wide cache
 (~/.cache/numba); NUMBA_CACHE_DIR overrides both. The node leaves that choice to numba: the
 variable must be set before numba is imported, which is the launching environment's business,
@@ -76,12 +79,11 @@ from std_msgs.msg import Header, String
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
-from collision_node.pipeline.broadphase import NAMES
-from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
+from collision_node.pipeline.contacts import STATE_CONTACT_DTYPE
 from collision_node.pipeline.jit_progress import compile_progress
 from collision_node.pipeline.robot import Robot
 from collision_node.pipeline.static_scene import InvalidCollider
-from collision_node.pipeline.warm_up import warm_up
+from collision_node.pipeline.warm_up import warm_up_in_background, warm_up_like
 from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import parse_joint_state, parse_pose_array
@@ -89,7 +91,7 @@ from collision_node.ros.joints import JointValues
 from collision_node.ros.lifetime import InitError, RosProgram
 from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.memory import keep_heap_memory
-from collision_node.ros.messages import CloudWriter
+from collision_node.ros.messages import CloudWriter, compile_writer
 
 # Newest input wins (doc/design.md, "Topics"); reliable, because Fast DDS delivers nothing
 # best-effort once a PoseArray passes ~512 KB. Overridable through the qos_overrides.*
@@ -187,6 +189,8 @@ class CollisionNode(LifecycleNode):
         self._cloud_writer: Optional[CloudWriter] = None   # collisions
         self._states_writer: Optional[CloudWriter] = None  # state and trajectory collisions
         self._marker_writer: Optional[MarkerWriter] = None
+        # The thread readying every kernel this configuration did not (pipeline.warm_up).
+        self._background_warm_up: Optional[threading.Thread] = None
         self._tick_timer = None  # checks the newest input, when tick_rate_hz > 0
         self._pending = None  # the newest unchecked input, in timer mode
         self._last_sequence = None  # the publication sequence number of the last input
@@ -278,12 +282,18 @@ class CollisionNode(LifecycleNode):
             except Exception as error:  # noqa: B902 (as _on_model)
                 raise params.ParameterError('robot_description', str(error)) from None
 
+        # The kernels this configuration runs now; every other one (other settings, other
+        # body counts) in the background from here on, while the node answers (pipeline.warm_up).
         start = time.perf_counter()
-        with compile_progress(self.get_logger().info):
-            compile_kernels()
+        with compile_progress(self.get_logger().info) as progress:
+            warm_up_like(world, config.dynamic_half_extents,
+                         robot if config.robot_description else None)
+            compile_writer()
+        self._background_warm_up = warm_up_in_background(progress.compiled > 0,
+                                                         self.get_logger().info)
         self._cloud_writer = CloudWriter()
-        self.get_logger().info('JIT warm-up of %d broad phases took %.2f s'
-                               % (len(NAMES), time.perf_counter() - start))
+        self.get_logger().info('JIT warm-up of the configured World took %.2f s'
+                               % (time.perf_counter() - start))
 
         self._monitor.scene(self._scene_version, config.colliders)
         if self._diagnostics_timer.timer_period_ns != round(1e9 * config.diagnostic_period_s):
@@ -393,6 +403,7 @@ class CollisionNode(LifecycleNode):
             self._collisions_publisher = self._markers_publisher = None
             self._states_publisher = self._trajectory_publisher = None
             self._cloud_writer = self._states_writer = self._marker_writer = None
+            self._background_warm_up = None
             self._pending, self._last_sequence, self._next_markers_s = None, None, -math.inf
             with self._world_lock:
                 world, self._world, self._config = self._world, None, None
@@ -913,14 +924,6 @@ def _change_colliders(world, old, new):
 def _ids(config):
     """Return each collider's (name, static id)."""
     return [(c.name, c.static_id) for c in config.colliders]
-
-
-def compile_kernels():
-    """Compile every kernel a tick can run, or load it from numba's cache."""
-    warm_up()
-    contacts = np.zeros(1, CONTACT_DTYPE)
-    contacts.flags.writeable = False  # as World.step returns them
-    CloudWriter().serialize(contacts, 0, 0, '')  # the cloud's kernel
 
 
 def main(args=None):
