@@ -11,8 +11,8 @@ from rclpy.parameter import parameter_dict_from_yaml_file, parameter_value_to_py
 from collision_node.benchmarks import collision_bench as bench
 from collision_node.benchmarks import report, robot, robot_model
 from collision_node.benchmarks.accuracy import (
-    AABBS_ONLY, BROAD_ONLY, CLASSIC, contact_keys, MODES, pair_errors, pair_keys, SAT_FLOAT32,
-    SAT_FLOAT64, SPHERES_ONLY)
+    AABBS_ONLY, BROAD_ONLY, CLASSIC, contact_keys, MODES, pair_errors, pair_keys, row_keys,
+    SAT_FLOAT32, SAT_FLOAT64, SPHERES_ONLY)
 from collision_node.benchmarks.runs import all_pairs
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import make_scene
@@ -236,6 +236,15 @@ def test_contact_keys_map_ids_back_to_rows():
     contacts['type_b'] = [STATIC, DYNAMIC]
     # 3 static rows, then dynamic rows: dynamic 0 -> row 3; static 2 -> row 2.
     assert contact_keys(contacts, 3, 10).tolist() == [2 * 10 + 3, 4 * 10 + 5]
+
+
+def test_row_keys_key_broad_phase_rows_as_contact_keys():
+    world = World(broad_phase='brute_force')
+    world.set_static([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]], [0.5, 0.5, 0.5])
+    poses = [[0.6, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], [0.0, 0.7, 0.0, 0.0, 0.0, 0.0, 1.0]]
+    broad = world.broad_phase_pairs(poses, [0.5, 0.5, 0.5])
+    contacts = world.step(poses, [0.5, 0.5, 0.5]).contacts
+    assert row_keys(broad.pairs, broad, 1, 3).tolist() == contact_keys(contacts, 1, 3).tolist()
 
 
 def test_slow_runs_are_skipped_by_extrapolation():

@@ -22,10 +22,16 @@ The modes, cheapest first, each counting as colliding:
 ``SAT float64``
     the World itself: broad phase, sphere prefilter and float64 SAT, as users get it.
 
+Every mode reads the World's public calls only: the candidate pairs, their comparison count
+and the boxes the SAT reads come from ``World.broad_phase_pairs`` (the pairs a discrete general
+step's broad phase hands the SAT, computed on a scratch path of the World's own), and
+``SAT float64`` times ``step`` on the same World (the call changes no step's state).
+
 False positives and false negatives are pair-set differences against the ground truth, summed
-over the ticks. Tick time is set_boxes + find_pairs + the mode's test, timed stage by stage in
-one pass (the float32 rounding of the boxes is not timed: a float32 pipeline would not pay
-it), and the World's whole ``step`` for ``SAT float64``.
+over the ticks. Tick time is the ``broad_phase_pairs`` call (writing the dynamic boxes, the
+broad phase's ``find_pairs``, and orienting and filtering its pairs, as a step does) + the
+mode's test, timed stage by stage in one pass (the float32 rounding of the boxes is not timed:
+a float32 pipeline would not pay it), and the World's whole ``step`` for ``SAT float64``.
 """
 import time
 
@@ -33,10 +39,9 @@ import numpy as np
 
 from collision_node.benchmarks.runs import tick_poses
 from collision_node.pipeline._jit import kernel
-from collision_node.pipeline.broadphase import make_broad_phase, Settings
-from collision_node.pipeline.obb import aabbs_overlap, Boxes, set_boxes, spheres_apart
+from collision_node.pipeline.obb import aabbs_overlap, spheres_apart
 from collision_node.pipeline.sat import collide_pairs, COLLIDING
-from collision_node.pipeline.world import STATIC, World
+from collision_node.pipeline.world import DYNAMIC, STATIC, World
 
 CLASSIC = 'every compared pair (classic)'
 BROAD_ONLY = 'broad phase only'
@@ -65,6 +70,16 @@ def contact_keys(contacts, n_static, n_total):
     rows_b = contacts['id_b'].astype(np.int64) + np.where(contacts['type_b'] == STATIC, 0,
                                                           n_static)
     return pair_keys(np.stack([rows_a, rows_b], axis=1), n_total)
+
+
+def row_keys(pairs, broad, n_static, n_total):
+    """Pair keys of ``pairs`` (P, 2), rows of World.broad_phase_pairs' answer ``broad``.
+
+    A row's key index is its collider id (the default ids 0..S-1) or S + its body index, as
+    in :func:`contact_keys`.
+    """
+    index = broad.ids.astype(np.int64) + np.where(broad.types == DYNAMIC, n_static, 0)
+    return pair_keys(index[np.asarray(pairs, np.int64).reshape(-1, 2)], n_total)
 
 
 def pair_errors(found, truth):
@@ -114,36 +129,32 @@ def ground_truth(scene, ticks, dt, budget_s):
 def measure_modes(scene, dt, truth, phase_name):
     """Errors and tick times of each mode for one broad phase, over the ticks of ``truth``.
 
-    Returns ({mode: {'false_positives', 'false_negatives', 'tick_ms' (list)}}, the
-    broad phase's pair comparisons per tick (list)).
+    Only the World's public calls: ``broad_phase_pairs`` for the candidates and the boxes the
+    SAT reads, ``step`` for SAT float64. Returns ({mode: {'false_positives',
+    'false_negatives', 'tick_ms' (list)}}, the broad phase's pair comparisons per tick (list)).
     """
     n_static = len(scene.static_poses)
-    n_dynamic = scene.dynamic_count
-    n_total = n_static + n_dynamic
-    boxes = Boxes(n_total)
-    set_boxes(boxes, 0, scene.static_poses, scene.static_half_extents)
-    phase = make_broad_phase(phase_name, Settings())
-    phase.set_static(boxes, n_static)
-    world = World(broad_phase=phase_name)
+    n_total = n_static + scene.dynamic_count
+    world = World(broad_phase=phase_name)  # broad_phase_pairs leaves its steps' state alone
     world.set_static(scene.static_poses, scene.static_half_extents)
     out = {mode: {'false_positives': 0, 'false_negatives': 0, 'tick_ms': []} for mode in MODES}
     kept = np.empty((0, 2), np.int64)
     compared = []
 
-    def record(mode, found_pairs, ms, tick):
-        errors = pair_errors(pair_keys(found_pairs, n_total), truth[tick])
+    def record(mode, found, ms, tick):  # found: (P, 2) rows of ``broad``
+        errors = pair_errors(row_keys(found, broad, n_static, n_total), truth[tick])
         out[mode]['false_positives'] += errors[0]
         out[mode]['false_negatives'] += errors[1]
         out[mode]['tick_ms'].append(ms)
 
     for tick, poses in tick_poses(scene, len(truth), dt):
         start = time.perf_counter()
-        set_boxes(boxes, n_static, poses, scene.dynamic_half_extents)
-        pairs, tick_compared = phase.find_pairs(boxes, n_static, n_dynamic)
+        broad = world.broad_phase_pairs(poses, scene.dynamic_half_extents)
         broad_ms = 1e3 * (time.perf_counter() - start)
-        compared.append(tick_compared)
+        pairs, boxes = broad.pairs, broad.boxes
+        compared.append(broad.compared)
         record(BROAD_ONLY, pairs, broad_ms, tick)
-        out[CLASSIC]['false_positives'] += int(tick_compared) - len(truth[tick])
+        out[CLASSIC]['false_positives'] += broad.compared - len(truth[tick])
         out[CLASSIC]['tick_ms'].append(broad_ms)
 
         if len(kept) < len(pairs):

@@ -27,6 +27,9 @@ the structure (``LOOSE_REBUILD_WORK``), the path rebuilds it and nothing is loos
 
 Continuous mode sweeps each pair over the motion since the previous accepted input, which the
 World hands in (whichever path checked it).
+
+:meth:`GeneralPath.broad_phase_pairs` (World.broad_phase_pairs) gives what a discrete step's
+broad phase hands the SAT, on a path of its own: it writes only that path's rows and phase.
 """
 import math
 import time
@@ -37,13 +40,13 @@ import numpy as np
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase import make_broad_phase
 from collision_node.pipeline.broadphase.pair_buffer import emit, emit_if, PairBuffer
-from collision_node.pipeline.contacts import (assemble_contacts, CONTACT_DTYPE, merge_contacts,
-                                              orient_pairs, STATIC)
+from collision_node.pipeline.contacts import (assemble_contacts, CONTACT_DTYPE, DYNAMIC,
+                                              merge_contacts, orient_pairs, STATIC)
 from collision_node.pipeline.continuous import (advance_pairs, boxes_at, motion, NO_CONTACT,
                                                 sweep_bounds)
 from collision_node.pipeline.obb import Boxes, InvalidBox, overlap_across, pad_bounds, set_boxes
 from collision_node.pipeline.sat import collide_pairs, COLLIDING, empty_output, INVALID, NEAR
-from collision_node.pipeline.scene_rows import write_bodies
+from collision_node.pipeline.scene_rows import as_poses, write_bodies
 from collision_node.pipeline.stats import OFF, Result, reused, Stats, SWEPT
 from collision_node.pipeline.z_order import inverse, z_order
 
@@ -81,6 +84,22 @@ class _Last(NamedTuple):
     half_extents: np.ndarray
     result: Result
     version: int
+
+
+class BroadPhasePairs(NamedTuple):
+    """What a discrete general-path step's broad phase hands the SAT (World.broad_phase_pairs).
+
+    Row r of ``boxes`` is static collider ``ids[r]`` (``types[r]`` STATIC) or dynamic body
+    ``ids[r]``, its index in the input (DYNAMIC); the dynamic rows follow the static ones in
+    spatial order. The arrays are read-only views, valid until the next call.
+    """
+
+    pairs: np.ndarray    # (P, 2) rows after the filters; first a body's (of two, the smaller)
+    ids: np.ndarray      # (N,) each row's collider id or body index
+    types: np.ndarray    # (N,) each row's STATIC or DYNAMIC
+    boxes: Boxes         # the N rows as the SAT reads them (AABBs and radii padded by margin)
+    compared: int        # the phase's comparisons (stats' ``compared``)
+    candidates: int      # its pairs before the filters (stats' ``candidate_pairs``)
 
 
 class GeneralPath:
@@ -182,6 +201,27 @@ class GeneralPath:
             1e3 * (narrow_done - broad_done), 1e3 * (time.perf_counter() - start), None))
         self._last = _Last(poses.copy(), half_extents.copy(), result, scene.version)
         return result
+
+    def broad_phase_pairs(self, poses, half_extents):
+        """Return the :class:`BroadPhasePairs` of a discrete step at these poses (no SAT).
+
+        Writes every dynamic row and pairs them all, as a step with nothing to keep does; a
+        path used for this only (World's) holds no step's state. Raises ValueError as step.
+        """
+        poses, half_extents = as_poses(poses), np.asarray(half_extents, dtype=np.float64)
+        self.sync()
+        self._scene.filter.check_count(len(poses))
+        self._write_dynamic_rows(poses, half_extents, None, OFF)
+        n_static, n_dynamic = self._scene.count, len(poses)
+        pairs, compared = self._candidate_pairs(n_dynamic, None, None) if n_dynamic else \
+            (np.zeros((0, 2), np.int64), 0)
+        candidates = len(pairs)
+        pairs = self._checked_pairs(pairs)
+        ids = np.concatenate([self._scene.rows.ids[:n_static], self.dynamic.ids])
+        types = np.repeat(np.array([STATIC, DYNAMIC], np.uint8), [n_static, n_dynamic])
+        boxes = Boxes._make(_read_only(array[:n_static + n_dynamic]) for array in self.boxes)
+        return BroadPhasePairs(_read_only(pairs), _read_only(ids), _read_only(types), boxes,
+                               int(compared), candidates)
 
     def validate(self):
         """Check the copied static rows, the loose rows and the phase's structure (testing).
@@ -493,6 +533,13 @@ def _contacts_of_still_bodies(last, moved, changed_static_ids):
     if len(changed_static_ids):
         b_still &= ~(is_static & np.isin(last['id_b'], changed_static_ids))
     return last[still[last['id_a']] & b_still]
+
+
+def _read_only(array):
+    """Return a read-only view of ``array`` (the array itself stays writeable)."""
+    view = array.view()
+    view.flags.writeable = False
+    return view
 
 
 def _check_valid(status):

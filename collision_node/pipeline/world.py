@@ -34,8 +34,8 @@ from collision_node.pipeline.broadphase import make_broad_phase, Settings
 from collision_node.pipeline.contacts import CONTACT_DTYPE, DYNAMIC, STATIC  # noqa: F401
 from collision_node.pipeline.continuous import CONTINUOUS_TOLERANCE
 from collision_node.pipeline.filters import ALL_CATEGORIES, DEFAULT_CATEGORY, PairFilter
-from collision_node.pipeline.obb import check_margin, check_tolerance
 from collision_node.pipeline.general_path import GeneralPath
+from collision_node.pipeline.obb import check_margin, check_tolerance
 from collision_node.pipeline.one_pass import Batches, OnePass
 from collision_node.pipeline.robot_bodies import DEFAULT_RESOLUTION, RobotBodies
 from collision_node.pipeline.robot_path import RobotPath
@@ -85,6 +85,7 @@ class World:
         self._one_pass = OnePass(self._rows)
         self._batches = Batches(self._rows)
         self._robot = RobotPath(self._rows, self._batches)
+        self._probe = GeneralPath(self._rows, continuous=False)  # broad_phase_pairs' own
         self._previous = None  # the poses of the last accepted input (the motion's start)
 
     @property
@@ -294,6 +295,10 @@ class World:
         result = path.step(poses, half_extents, self._previous, start)
         self._previous = path.last_poses
         return result
+
+    def broad_phase_pairs(self, poses, half_extents):
+        """Return a discrete general step's BroadPhasePairs at these poses; changes no step."""
+        return self._probe.broad_phase_pairs(poses, half_extents)
 
     def check_states(self, states, half_extents):
         """Check K independent states of the D dynamic bodies against the static scene.
