@@ -13,6 +13,7 @@ The node needs less: :func:`warm_up_like` runs a copy of its configured World on
 bodies, so it subscribes once those kernels are ready, and :func:`warm_up_in_background`
 readies the rest while it answers (doc/design.md, JIT).
 """
+import atexit
 import functools
 import itertools
 import multiprocessing
@@ -33,6 +34,7 @@ from collision_node.pipeline.workers import Workers
 from collision_node.pipeline.world import ONE_PASS_PAIRS, ONE_PASS_PHASES, World
 
 BACKGROUND_NICENESS = 10  # the background compile yields the CPUs to the node's ticks
+STOP_POLL_S = 0.2  # how often the parts' compile looks whether it is asked to stop
 WARM_UP_BODIES = 64  # half static: enough for every broad phase to run its full code path
 AUTO_SPREAD_BODIES = 2 * GRID_BODIES  # auto measures the boxes' spread from this many bodies
 # Half static, half dynamic (n/2 · (n/2 - 1) / 2 + n²/4 pairs): past ONE_PASS_PAIRS.
@@ -129,7 +131,8 @@ def warm_up_like(world, half_extents, robot=None):
         twin.close()
 
 
-def compile_in_processes(sections=None, processes=None, report=print, niceness=0):
+def compile_in_processes(sections=None, processes=None, report=print, niceness=0,
+                         stop=None):
     """Compile (or load) the kernels of ``sections`` (None: all) into numba's cache.
 
     The sections run in ``processes`` new processes (None: one a CPU), heaviest first, a
@@ -137,8 +140,9 @@ def compile_in_processes(sections=None, processes=None, report=print, niceness=0
     cache, not in this process. Two processes that compile the same kernel (the SAT under
     every section, say) both write it: numba writes whole files, and _jit serializes the
     writes to one kernel's index. ``report(line)`` hears a line as each section is done;
-    the processes run ``niceness`` below this one's priority. Returns how many kernels
-    compiled (a kernel compiled by two processes counts twice).
+    the processes run ``niceness`` below this one's priority; ``stop`` (a threading.Event),
+    once set, ends them within STOP_POLL_S. Returns how many kernels compiled (a kernel
+    compiled by two processes counts twice).
     """
     names = list(SECTIONS if sections is None else sections)
     processes = max(1, min(len(names), processes or os.cpu_count()))
@@ -147,12 +151,15 @@ def compile_in_processes(sections=None, processes=None, report=print, niceness=0
     # spawn, not fork: a fork of a process that compiled (LLVM, numba's threads) is not safe.
     with multiprocessing.get_context('spawn').Pool(processes, os.nice, (niceness,)) as pool:
         finished = pool.imap_unordered(_compile_section, names)
-        while done < len(names):
+        reported = start
+        while done < len(names) and not (stop is not None and stop.is_set()):
             try:
-                name, compiled, seconds = finished.next(timeout=REPORT_PERIOD_S)
+                name, compiled, seconds = finished.next(timeout=STOP_POLL_S)
             except multiprocessing.TimeoutError:  # a line a period, as in a start's compile
-                report('%d of %d parts compiled, %.0f s so far'
-                       % (done, len(names), time.monotonic() - start))
+                if time.monotonic() - reported >= REPORT_PERIOD_S:
+                    reported = time.monotonic()
+                    report('%d of %d parts compiled, %.0f s so far'
+                           % (done, len(names), reported - start))
                 continue
             done += 1
             kernels += compiled
@@ -187,19 +194,35 @@ def warm_up_in_background(compile_first, report=None):
                 start = time.monotonic()
                 if compile_first:
                     compile_in_processes(report=lambda line: None,
-                                         niceness=BACKGROUND_NICENESS)
-                warm_up()
+                                         niceness=BACKGROUND_NICENESS, stop=_stopping)
+                for name in SECTIONS:
+                    if _stopping.is_set():
+                        return
+                    warm_up([name])
                 if report is not None:
                     report('every other kernel ready, in the background in %.1f s'
                            % (time.monotonic() - start))
 
             _background = threading.Thread(target=run, name='warm_up', daemon=True)
             _background.start()
+            atexit.register(_stop_background)
         return _background
+
+
+def _stop_background():
+    """Stop the background warm-up at the end of the process, and wait for it.
+
+    A thread left inside numba or LLVM while the interpreter tears down can crash the process
+    (status 139 instead of 0): the warm-up stops between sections (a second or so), the
+    compile processes are ended.
+    """
+    _stopping.set()
+    _background.join()
 
 
 _background = None  # the process's background warm-up thread, once one started
 _background_lock = threading.Lock()
+_stopping = threading.Event()  # set at the process's end: the background stops
 
 
 def _broad_phase(name):
