@@ -12,6 +12,7 @@ import sysconfig
 import numpy as np
 from std_msgs.msg import Header
 
+from collision_node import World
 from collision_node.pipeline import scenes
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
@@ -23,7 +24,7 @@ SNIPPETS = {
     'README.md': ['Point it at your robot', 'Publishing poses from a script',
                   'The collisions cloud'],
     'doc/design.md': ['Static collider ids'],
-    'doc/python-api.md': ['Python API'],
+    'doc/python-api.md': ['Python API', "The broad phase's pairs"],
     'doc/changing-scene.md': ['Moving colliders with static_poses',
                               'Adding, removing, resizing, enabling with parameters'],
     'doc/lifecycle.md': ['From code'],
@@ -73,6 +74,21 @@ def test_python_api_snippet():
     first = batch[batch['state'] == 0]
     for name in result.contacts.dtype.names:
         np.testing.assert_array_equal(first[name], result.contacts[name])
+
+
+def test_broad_phase_pairs_snippet():
+    scene = scenes.make_scene('room', 40, 0)
+    world = World(broad_phase='brute_force')
+    world.set_static(scene.static_poses, scene.static_half_extents)
+    namespace = {'world': world, 'dynamic_poses': scene.dynamic_poses(0.0),
+                 'dynamic_half_extents': scene.dynamic_half_extents}
+    snippet, = python_snippets(DOC / 'python-api.md')["The broad phase's pairs"]
+    exec(snippet, namespace)
+    broad = namespace['broad']
+    contacts = world.step(namespace['dynamic_poses'], scene.dynamic_half_extents).contacts
+    keys = {(int(broad.ids[a]), int(broad.types[b]), int(broad.ids[b])) for a, b in broad.pairs}
+    assert {(int(c['id_a']), int(c['type_b']), int(c['id_b'])) for c in contacts} <= keys
+    assert broad.compared >= broad.candidates >= len(broad.pairs) >= len(contacts) > 0
 
 
 def test_robot_snippets(monkeypatch):
