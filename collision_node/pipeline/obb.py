@@ -159,6 +159,9 @@ def check_tolerance(value, what='continuous tolerance'):
 
 
 def _checked_distance(value, what, positive):
+    if type(value) is float and (value > 0.0 if positive else value >= 0.0) \
+            and value <= MAX_COORDINATE:  # the common case, without numpy's calls
+        return value
     values = np.asarray(value, dtype=np.float64)
     above_low = values > 0.0 if positive else values >= 0.0
     bad = np.flatnonzero(~(above_low & (values <= MAX_COORDINATE)))  # NaN is never in range

@@ -34,7 +34,7 @@ from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE
 from collision_node.pipeline.distance import box_distance
 from collision_node.pipeline.frames import matrix, relative_pose, sum_abs
-from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS
+from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS, write_boxes
 from collision_node.pipeline.robot import (box_frame, box_poses_of_states,
                                            forward_kinematics, IDENTITY_POSE, link_frames,
                                            link_transforms, RobotModel)
@@ -97,9 +97,9 @@ def segment_contacts(world, bodies, waypoints, exact, found, keys):
     """
     at_waypoints = exact.copy()
     at_waypoints['toi'] = 0.0  # check_states marks a discrete contact at the step's end, 1
-    segment, pair = np.nonzero(found >= 0)
-    if not len(segment):  # a free path's answer: sorted already, as check_states sorts
+    if not len(found) or found.max() < 0.0:  # a free path's: sorted, as check_states sorts
         return at_waypoints
+    segment, pair = np.nonzero(found >= 0)
     toi = found[segment, pair]
     reported = {(row['state'], row['id_a'], row['type_b'], row['id_b']) for row in exact}
     new = [i for i in range(len(segment))
@@ -146,11 +146,13 @@ def check_joint_states(model_fields, base_pose, joint_states, statics, rows, opt
 
 
 @kernel
-def first_uncleared_pieces(model_fields, base_pose, waypoints, pairs, pair_radii, margins,
-                           boxes, resolution):
+def first_uncleared_pieces(model_fields, base_pose, waypoints, poses, pairs, pair_radii,
+                           margins, boxes, resolution):
     """Return, per segment and pair, where the first configuration not proven free lies.
 
-    ``boxes`` (centers, rotations, extents): rows 0..B-1 are written here for the robot's
+    ``poses`` (W, B, 7): the robot's box poses at the waypoints (RobotBodies.poses), placed
+    as they are. ``boxes`` (centers, rotations, extents): rows 0..B-1 are written here for the
+    robot's
     boxes, the static boxes follow them. ``pairs`` (P, 2) rows of ``boxes``, the first one a
     robot box, ``pair_radii`` (P, dof) their Robot.pair_motion_radii, ``margins`` (P,) the
     distance within which each pair counts. Returns (W - 1, P):
@@ -163,12 +165,14 @@ def first_uncleared_pieces(model_fields, base_pose, waypoints, pairs, pair_radii
     found = np.full((waypoints.shape[0] - 1, len(pairs)), -1.0)
     link_rotations, link_translations = link_frames(model)
     scratch = (np.empty(dof), link_rotations, link_translations)  # q and the link frames
+    count = model.half_extents.shape[0]
+    bounds = (np.empty((count, 2, 3)), np.empty(count))  # a pose's AABBs and radii, not read
     # The boxes at the segment's start (its first waypoint), end and current configuration,
     # each placed when a pair needs it: the end's placement is the next segment's start.
     start = boxes
     end = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     at = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
-    _place(model, base_pose, waypoints[0], waypoints[0], 0.0, scratch, start)
+    _place_pose(poses[0], model, start, bounds)
     radii = np.sqrt(np.sum(start[2] * start[2], axis=1))  # half diagonals: the boxes' spheres
     start_placed = True
     # A lower bound on each pair's distance at the segment's start: what a test there or at
@@ -194,7 +198,7 @@ def first_uncleared_pieces(model_fields, base_pose, waypoints, pairs, pair_radii
                 credit[p] -= motion
                 continue
             if not start_placed:
-                _place(model, base_pose, waypoints[k], waypoints[k], 0.0, scratch, start)
+                _place_pose(poses[k], model, start, bounds)
                 start_placed = True
             enough = margins[p] + max(motion, resolution)
             bound = _sphere_gap(start[0], radii, a, b)
@@ -210,7 +214,7 @@ def first_uncleared_pieces(model_fields, base_pose, waypoints, pairs, pair_radii
                 continue
             cleared[p] = free / motion * SHRINK
             if not end_placed:
-                _place(model, base_pose, waypoints[k + 1], waypoints[k + 1], 0.0, scratch, end)
+                _place_pose(poses[k + 1], model, end, bounds)
                 end_placed = True
             enough = margins[p] + motion * (1.0 - cleared[p])
             bound = _sphere_gap(end[0], radii, a, b)
@@ -258,6 +262,13 @@ def first_uncleared_pieces(model_fields, base_pose, waypoints, pairs, pair_radii
         start, end = end, start
         start_placed = end_placed
     return found
+
+
+@kernel
+def _place_pose(poses, model, boxes, bounds):
+    """Write the robot's boxes at a waypoint, from its box ``poses`` (B, 7), into rows 0..B-1."""
+    centers, rotations, extents = boxes
+    write_boxes(poses, model.half_extents, 0, None, centers, rotations, extents, *bounds)
 
 
 @kernel

@@ -60,7 +60,10 @@ class RobotPath:
         """Check a joint-space path as World.check_trajectory does (``world`` checks joints)."""
         bodies = self._robot_bodies()
         waypoints = bodies.robot._states(waypoints)
-        exact = world.check_joints(waypoints).contacts
+        # The forward kinematics of the waypoints once, for their exact check and for the
+        # segments' ends (check_joints is check_states on these poses, bit for bit).
+        poses = bodies.poses(waypoints)
+        exact = world.check_states(poses, bodies.robot.half_extents).contacts
         if len(waypoints) < 2:
             return Result(exact, {})
         version, pairs_of, arguments = self._segment_pairs
@@ -68,8 +71,8 @@ class RobotPath:
             arguments = self._robot_pairs(bodies)
             self._segment_pairs = (self._scene.version, bodies, arguments)
         pairs, keys, radii, margins, boxes = arguments
-        found = first_uncleared_pieces(bodies.model_fields, bodies.base_pose, waypoints, pairs,
-                                       radii, margins, boxes, max(resolution, 1e-12))
+        found = first_uncleared_pieces(bodies.model_fields, bodies.base_pose, waypoints, poses,
+                                       pairs, radii, margins, boxes, max(resolution, 1e-12))
         return Result(segment_contacts(world, bodies, waypoints, exact, found, keys), {})
 
     def _robot_bodies(self):
