@@ -15,13 +15,13 @@ static boxes and independent of the others, into one array with each contact's s
 
 The kernels take structures, as pynndescent's search takes one tree and its query: ``rows``
 the box rows, a copy of the scene's static rows 0..S-1 with room for the bodies after them,
-(centers, rotations, extents, aabbs, radii, margins or None: no collider has a margin of its
-own); ``statics`` what the pass needs of the static colliders besides their boxes, one int64
-row per static row in id order (row, id, category, mask, named in an ignored pair), so S is
-its length; ``options`` (margin or None: no margin at all, the bounds' padding, the sphere
-prefilter, the filter table or None: :func:`checked_pairs`); and ``last`` the last input
-checked (poses, half extents, valid). Plain tuples in these orders: numba types a NamedTuple
-argument from Python on every call, slowly (robot_bodies.RobotBodies.model_fields).
+(centers, rotations, extents, aabbs, radii, margins or None: no margin at all); ``statics``
+what the pass needs of the static colliders besides their boxes, one int64 row per static
+row in id order (row, id, category, mask, named in an ignored pair), so S is its length;
+``options`` (margin or None: no margin at all, the bounds' padding, the sphere prefilter,
+the filter table: :func:`checked_pairs`, all True without filters); and ``last`` the last
+input checked (poses, half extents, valid). Plain tuples in these orders: numba types a
+NamedTuple argument from Python on every call, slowly (robot_bodies.RobotBodies.model_fields).
 """
 import numpy as np
 
@@ -222,9 +222,8 @@ def _candidates(aabbs, statics, bodies, checked, pairs, owner, which):
     """Write a state's pairs whose AABBs overlap and the filters let through to ``pairs``.
 
     With each pair's body a (``owner``) and its b as the pass visits them (``which``): for
-    each body a by id, the dynamic bodies after it, then the statics by id. ``checked`` an
-    argument of its own, not an item of ``options``: numba compiles ``checked is not None``
-    out only for an argument. Returns (pairs, compared, candidates, filtered).
+    each body a by id, the dynamic bodies after it, then the statics by id; ``checked`` the
+    filter table. Returns (pairs, compared, candidates, filtered).
     """
     n_static = len(statics)
     # Counted in registers: an array element bumped per pair is a store per pair.
@@ -237,7 +236,7 @@ def _candidates(aabbs, statics, bodies, checked, pairs, owner, which):
             if not aabbs_overlap(aabbs, row_a, row_b):
                 continue
             candidates += 1
-            if checked is not None and not checked[a, j]:
+            if not checked[a, j]:
                 filtered += 1
                 continue
             pairs[n, 0] = row_a
