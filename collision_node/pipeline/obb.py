@@ -255,9 +255,7 @@ def write_boxes(poses, half_extents, start, rows, centers, rotations, extents, a
             b = start + i
         else:
             b = start + rows[i]
-        x, y, z, w = pose[3], pose[4], pose[5], pose[6]
-        norm = math.sqrt(x * x + y * y + z * z + w * w)
-        r = _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm)
+        r, reach = box_axes(pose, half)
         rotations[b, 0, 0], rotations[b, 0, 1], rotations[b, 0, 2] = r[0], r[1], r[2]
         rotations[b, 1, 0], rotations[b, 1, 1], rotations[b, 1, 2] = r[3], r[4], r[5]
         rotations[b, 2, 0], rotations[b, 2, 1], rotations[b, 2, 2] = r[6], r[7], r[8]
@@ -265,12 +263,28 @@ def write_boxes(poses, half_extents, start, rows, centers, rotations, extents, a
         for k in range(3):
             centers[b, k] = pose[k]
             extents[b, k] = half[k]
-            reach = abs(r[3 * k]) * half[0] + abs(r[3 * k + 1]) * half[1] \
-                + abs(r[3 * k + 2]) * half[2]
-            reach += AABB_RELATIVE_MARGIN * (reach + abs(pose[k]))
-            aabbs[b, 0, k] = pose[k] - reach
-            aabbs[b, 1, k] = pose[k] + reach
+            aabbs[b, 0, k] = pose[k] - reach[k]
+            aabbs[b, 1, k] = pose[k] + reach[k]
     return -1, VALID
+
+
+@kernel
+def box_axes(pose, half):
+    """Return the rotation (row-major 9-tuple) of a valid ``pose`` and its AABB's half widths.
+
+    The one place a pose's quaternion becomes the box a check tests (write_boxes, and the
+    robot's pass, which places its boxes without writing their poses): scalars in and out,
+    so that a caller's arrays are not handed to a call.
+    """
+    x, y, z, w = pose[3], pose[4], pose[5], pose[6]
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    r = _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm)
+    reach = (abs(r[0]) * half[0] + abs(r[1]) * half[1] + abs(r[2]) * half[2],
+             abs(r[3]) * half[0] + abs(r[4]) * half[1] + abs(r[5]) * half[2],
+             abs(r[6]) * half[0] + abs(r[7]) * half[1] + abs(r[8]) * half[2])
+    return r, (reach[0] + AABB_RELATIVE_MARGIN * (reach[0] + abs(pose[0])),
+               reach[1] + AABB_RELATIVE_MARGIN * (reach[1] + abs(pose[1])),
+               reach[2] + AABB_RELATIVE_MARGIN * (reach[2] + abs(pose[2])))
 
 
 @kernel

@@ -8,11 +8,11 @@ input returns that answer again. Its rows are its own, so it keeps nothing of th
 path's and changes nothing of it.
 
 :class:`Batches` checks K states of D bodies for ``check_states`` (and the robot's
-``check_joints``): small ones in one pass over the threads, each chunk of states with rows of
-its own (kept per version and body count), larger ones state after state by a discrete
-general path of their own over the same scene rows, made for the batch. Both key what they
-keep on the scene rows' version (scene_rows.py), so a new option reaches them on their next
-call.
+``check_joints`` in scenes too large for the robot's pass): small ones in one pass over the
+threads, each chunk of states with rows of its own (kept per version and body count), larger
+ones state after state by a discrete general path of their own over the same scene rows, made
+for the batch. Both key what they keep on the scene rows' version (scene_rows.py), so a new
+option reaches them on their next call.
 """
 import time
 
@@ -141,18 +141,18 @@ class Batches:
             contacts, counters = self._one_by_one(states, extents)
         else:
             poses = states.reshape(-1, 7)
-            contacts, counters = self.in_one_pass(
+            contacts, counters = self._in_one_pass(
                 count, bodies, lambda *arguments: check_states(poses, bodies, extents,
                                                                *arguments))
         contacts.flags.writeable = False
         return Result(contacts, one_pass_stats(bodies, scene.count, counters,
                                                1e3 * (time.perf_counter() - start), count))
 
-    def in_one_pass(self, count, bodies, check):
+    def _in_one_pass(self, count, bodies, check):
         """Return the contacts and counters of ``count`` small states, chunks over threads.
 
-        ``check(*arguments)`` runs small_scene.check_states (or a kernel that ends in it) on
-        its static arguments, a chunk's box rows and the chunk's range of states.
+        ``check(*arguments)`` runs small_scene.check_states on its static arguments, a
+        chunk's box rows and the chunk's range of states.
         """
         scene = self._scene
         states_pass = self._states_pass

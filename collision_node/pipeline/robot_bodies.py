@@ -34,12 +34,11 @@ from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE
 from collision_node.pipeline.distance import box_distance
 from collision_node.pipeline.frames import matrix, relative_pose, sum_abs
-from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS, write_boxes
-from collision_node.pipeline.robot import (box_frame, box_poses_of_states,
-                                           forward_kinematics, IDENTITY_POSE, link_frames,
-                                           link_transforms, RobotModel)
+from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS
+from collision_node.pipeline.robot import (box_frame, box_poses_of_states, IDENTITY_POSE,
+                                           link_frames, link_transforms, pack_model,
+                                           unpack_model)
 from collision_node.pipeline.sat import COLLIDING, SEPARATED, separating_axis_test
-from collision_node.pipeline.small_scene import check_states
 
 # What a segment's row takes from the exact contact at its toi, when its pair collides there.
 GEOMETRY = ('x', 'y', 'z', 'normal_x', 'normal_y', 'normal_z', 'depth', 'distance')
@@ -63,10 +62,8 @@ class RobotBodies:
                              % (pose.shape,))
         check_boxes(pose.reshape(1, 7), np.ones((1, 3)))  # finite, unit quaternion
         self.robot = robot
-        # The model as a plain tuple for the kernels called from Python: numba types a
-        # NamedTuple argument in Python on every call (5.5 µs for the Panda's 15 arrays), a
-        # tuple in C (1.8 µs); the kernels make it a RobotModel again, at no cost.
-        self.model_fields = tuple(robot.model)
+        # The model as two flat arrays for the kernels called from Python (robot.pack_model).
+        self.packed_model = pack_model(robot.model)
         self.base_pose = np.array(pose)
         self.base_pose[3:] /= np.linalg.norm(pose[3:])
         allowed = np.zeros((len(robot.box_links),) * 2, np.bool_)
@@ -125,54 +122,28 @@ def segment_contacts(world, bodies, waypoints, exact, found, keys):
 
 
 @kernel
-def check_joint_states(model_fields, base_pose, joint_states, statics, rows, options,
-                       first_state, stop_state):
-    """Check joint states ``[first_state, stop_state)``: their box poses, then the one pass.
-
-    One compiled call from joint values to contacts: the forward kinematics writes each
-    state's box poses, and small_scene.check_states (whose arguments follow) checks them, so
-    each state's answer is the one pass's, bit for bit, on those poses. ``model_fields``:
-    the RobotModel as a plain tuple (RobotBodies.model_fields).
-    """
-    model = RobotModel(*model_fields)
-    count = model.half_extents.shape[0]
-    poses = np.empty((joint_states.shape[0] * count, 7))  # only this chunk's rows are written
-    link_rotations, link_translations = link_frames(model)
-    for k in range(first_state, stop_state):
-        forward_kinematics(model, base_pose, joint_states[k], poses[k * count:(k + 1) * count],
-                           link_rotations, link_translations)
-    return check_states(poses, count, model.half_extents, statics, rows, options, first_state,
-                        stop_state)
-
-
-@kernel
-def first_uncleared_pieces(model_fields, base_pose, waypoints, poses, pairs, pair_radii,
+def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs, pair_radii,
                            margins, boxes, resolution):
     """Return, per segment and pair, where the first configuration not proven free lies.
 
-    ``poses`` (W, B, 7): the robot's box poses at the waypoints (RobotBodies.poses), placed
-    as they are. ``boxes`` (centers, rotations, extents): rows 0..B-1 are written here for the
-    robot's
+    ``boxes`` (centers, rotations, extents): rows 0..B-1 are written here for the robot's
     boxes, the static boxes follow them. ``pairs`` (P, 2) rows of ``boxes``, the first one a
     robot box, ``pair_radii`` (P, dof) their Robot.pair_motion_radii, ``margins`` (P,) the
-    distance within which each pair counts. Returns (W - 1, P):
-    s in [0, 1) where the pair comes within ``resolution`` of its margin, or -1 (the whole
-    segment is proven free). ``model_fields``: the RobotModel as a plain tuple
-    (RobotBodies.model_fields).
+    distance within which each pair counts (robot_pass.RobotRows holds all four). Returns
+    (W - 1, P): s in [0, 1) where the pair comes within ``resolution`` of its margin, or -1
+    (the whole segment is proven free). The model as robot.pack_model packs it.
     """
-    model = RobotModel(*model_fields)
+    model = unpack_model(model_ints, model_floats)
     dof = waypoints.shape[1]
     found = np.full((waypoints.shape[0] - 1, len(pairs)), -1.0)
     link_rotations, link_translations = link_frames(model)
     scratch = (np.empty(dof), link_rotations, link_translations)  # q and the link frames
-    count = model.half_extents.shape[0]
-    bounds = (np.empty((count, 2, 3)), np.empty(count))  # a pose's AABBs and radii, not read
     # The boxes at the segment's start (its first waypoint), end and current configuration,
     # each placed when a pair needs it: the end's placement is the next segment's start.
     start = boxes
     end = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     at = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
-    _place_pose(poses[0], model, start, bounds)
+    _place(model, base_pose, waypoints[0], waypoints[0], 0.0, scratch, start)
     radii = np.sqrt(np.sum(start[2] * start[2], axis=1))  # half diagonals: the boxes' spheres
     start_placed = True
     # A lower bound on each pair's distance at the segment's start: what a test there or at
@@ -198,7 +169,7 @@ def first_uncleared_pieces(model_fields, base_pose, waypoints, poses, pairs, pai
                 credit[p] -= motion
                 continue
             if not start_placed:
-                _place_pose(poses[k], model, start, bounds)
+                _place(model, base_pose, waypoints[k], waypoints[k], 0.0, scratch, start)
                 start_placed = True
             enough = margins[p] + max(motion, resolution)
             bound = _sphere_gap(start[0], radii, a, b)
@@ -214,7 +185,7 @@ def first_uncleared_pieces(model_fields, base_pose, waypoints, poses, pairs, pai
                 continue
             cleared[p] = free / motion * SHRINK
             if not end_placed:
-                _place_pose(poses[k + 1], model, end, bounds)
+                _place(model, base_pose, waypoints[k + 1], waypoints[k + 1], 0.0, scratch, end)
                 end_placed = True
             enough = margins[p] + motion * (1.0 - cleared[p])
             bound = _sphere_gap(end[0], radii, a, b)
@@ -262,13 +233,6 @@ def first_uncleared_pieces(model_fields, base_pose, waypoints, poses, pairs, pai
         start, end = end, start
         start_placed = end_placed
     return found
-
-
-@kernel
-def _place_pose(poses, model, boxes, bounds):
-    """Write the robot's boxes at a waypoint, from its box ``poses`` (B, 7), into rows 0..B-1."""
-    centers, rotations, extents = boxes
-    write_boxes(poses, model.half_extents, 0, None, centers, rotations, extents, *bounds)
 
 
 @kernel

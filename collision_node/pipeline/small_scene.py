@@ -21,7 +21,7 @@ row in id order (row, id, category, mask, named in an ignored pair), so S is its
 ``options`` (margin or None: no margin at all, the bounds' padding, the sphere prefilter,
 the filter table: :func:`checked_pairs`, all True without filters); and ``last`` the last
 input checked (poses, half extents, valid). Plain tuples in these orders: numba types a
-NamedTuple argument from Python on every call, slowly (robot_bodies.RobotBodies.model_fields).
+NamedTuple argument from Python on every call, slowly (robot.pack_model).
 """
 import numpy as np
 

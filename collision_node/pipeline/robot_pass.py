@@ -1,0 +1,282 @@
+"""The robot's pass: joint values to contacts in one compiled call, forward kinematics included.
+
+A robot's boxes are few, and which of their pairs are tested is known before any state: its
+self-collision filter and the World's filters leave a fixed list of pairs (:class:`RobotRows`,
+in the cloud's order). So this pass does not pair the boxes as the one pass does (every pair's
+AABBs, then the filter table). Per state it
+
+1. runs the forward kinematics to the link frames (robot.link_transforms) and places each
+   box's centre;
+2. visits the listed pairs with culls that read only centres: the bounding spheres of two
+   robot boxes, or a robot box's sphere against a static box itself (the distance from the
+   centre to that box: a table under the robot is far from most boxes' centres, not from their
+   spheres' reach of its own sphere). A box is oriented (the quaternion of its pose, then the
+   rotation and AABB a step makes of it: obb.box_axes) only when a pair of it passes, once per
+   state, and then the pair's AABBs are compared;
+3. hands the pairs left to the one pass's SAT loop (sat.collide_pair_rows) and writes the
+   reported ones as the state's contacts, in the list's order.
+
+Exactness. A cull drops a pair only when its boxes are apart by more than the margin and the
+SAT's touching tolerance, so it never drops a pair the SAT would report; and the SAT tests the
+boxes a step builds from robot.box_poses (the same centre, quaternion and rotation, bit for
+bit). So each state's contacts are World.step's on its box poses, to the bit. The counters
+differ: ``compared`` counts every pair of a state, ``filtered_pairs`` those the filters
+leave out, ``candidate_pairs`` the listed ones and ``sat_tests`` the ones the culls left.
+
+Cost (the Panda over a table, a wall and a shelf: 95 listed pairs, about 6 left by the culls):
+the forward kinematics is a third of a state, the culls a third, the SAT the rest. Arguments
+are few and flat (robot.pack_model; the static boxes one table): numba unboxes each array
+argument on every call, and one state's call would otherwise spend more entering than checking.
+"""
+import math
+
+import numpy as np
+
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE, STATIC, write_contact
+from collision_node.pipeline.frames import matrix
+from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORDINATE,
+                                         NON_FINITE_POSE, OUT_OF_RANGE, TIE_ULPS, VALID)
+from collision_node.pipeline.robot import (box_center, box_rotation, link_frames,
+                                           link_transforms, quaternion_from_rotation,
+                                           unpack_model)
+from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
+from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
+
+# Columns of RobotRows.static_boxes: a static row's box as the scene rows hold it.
+CENTER, ROTATION, EXTENTS, LOW, HIGH, RADIUS, OWN_MARGIN = 0, 3, 12, 15, 18, 21, 22
+STATIC_COLUMNS = 23
+# Entries of RobotRows.settings.
+MARGIN, PAD, HAS_MARGIN = range(3)
+# The "body" of a failed state whose q holds a NaN or Inf.
+NON_FINITE_JOINT = -2
+
+
+class RobotRows:
+    """The robot's listed pairs and the static boxes, for one scene version and robot.
+
+    ``pairs`` (P, 2): rows of the pass's boxes (robot box a, then row b: a robot box, or
+    B + the static row), in the cloud's order; ``keys`` (P, 3) each pair's (id_a, type_b,
+    id_b); ``margins`` (P,) the distance within which each pair counts; ``motion_radii``
+    (P, dof) (Robot.pair_motion_radii); ``boxes`` (centers, rotations, half extents): B rows
+    for the robot (written by a check), then the static rows; ``static_boxes`` (S, 23) and
+    ``settings`` (margin, pad, margin given) what the pass reads of the scene.
+    """
+
+    def __init__(self, scene, bodies):
+        """Gather what ``bodies`` (robot_bodies.RobotBodies) are checked against in ``scene``."""
+        count, statics = bodies.count, scene.rows.by_id
+        self.version, self.bodies = scene.version, bodies
+        a, j = np.nonzero(np.triu(scene.filter_table(count), 1))  # the pass's order
+        static = j >= count
+        rows, types, ids = j.copy(), np.full(len(j), DYNAMIC, np.int64), j.copy()
+        rows[static] = count + statics[j[static] - count, STATICS_ROW]
+        ids[static] = statics[j[static] - count, STATICS_ID]
+        types[static] = STATIC
+        self.pairs = np.column_stack([a, rows]).astype(np.int64)
+        self.keys = np.column_stack([a, types, ids]).astype(np.int64)
+        self.margins = np.full(len(j), scene.options.margin)
+        boxes = scene.boxes
+        n_static = scene.count
+        if scene.rows.own_margins:
+            self.margins[static] += boxes.margins[rows[static] - count]
+        self.motion_radii = bodies.robot.pair_motion_radii(a, np.where(static, -1, j))
+        self.boxes = tuple(np.concatenate([np.zeros((count,) + part.shape[1:]), part[:n_static]])
+                           for part in (boxes.centers, boxes.rotations, boxes.half_extents))
+        # The static rows padded as the one pass reads them (scene_rows.SceneRows.pass_rows).
+        padded = scene.pass_rows(0)
+        table = np.empty((n_static, STATIC_COLUMNS))
+        table[:, CENTER:ROTATION] = padded[0][:n_static]
+        table[:, ROTATION:EXTENTS] = padded[1][:n_static].reshape(-1, 9)
+        table[:, EXTENTS:LOW] = padded[2][:n_static]
+        table[:, LOW:RADIUS] = padded[3][:n_static].reshape(-1, 6)
+        table[:, RADIUS] = padded[4][:n_static]
+        table[:, OWN_MARGIN] = boxes.margins[:n_static] if scene.rows.own_margins else 0.0
+        self.static_boxes = table
+        margin, pad = scene.pass_options(count)[:2]
+        self.settings = np.array([0.0 if margin is None else margin, pad,
+                                  0.0 if margin is None else 1.0])
+        self.n_static = n_static
+        self.all_pairs = count * (count - 1) // 2 + count * n_static
+        self.filtered = self.all_pairs - len(j)  # pairs the filters leave out
+        self.one_state = (bodies.robot.dof,)  # the shape of one state's q
+
+    def check(self, states, first_state, stop_state):
+        """Return check_robot_states' answer for states ``[first_state, stop_state)``."""
+        model_ints, model_floats = self.bodies.packed_model
+        return check_robot_states(states, model_ints, model_floats, self.bodies.base_pose,
+                                  self.pairs, self.keys, self.static_boxes, self.settings,
+                                  first_state, stop_state)
+
+
+@kernel
+def check_robot_states(states, model_ints, model_floats, base_pose, pairs, keys, static_boxes,
+                       settings, first_state, stop_state):
+    """Check joint states ``[first_state, stop_state)`` of ``states`` (K, dof) (module docstring).
+
+    Arguments as RobotRows holds them; the model as robot.pack_model packs it. Returns
+    (contacts with their state, (pairs the culls passed, SAT tests), first failed state
+    or -1, its box (NON_FINITE_JOINT: its q), obb reason code, 1 if the SAT met NaN).
+    """
+    model = unpack_model(model_ints, model_floats)
+    count = model.half_extents.shape[0]
+    pad = settings[PAD]
+    centers, rotations, extents, aabbs, radii, margins = _rows(model.half_extents, static_boxes,
+                                                               pad)
+    # The rounding the culls allow: one bound per state on what obb.spheres_apart allows each
+    # pair (64 ulps of the radii, extents and coordinates), so that a cull is a few flops.
+    widest = 0.0  # the largest radius or static box's margin, half extents and radius
+    farthest_static = 0.0  # the largest sum of a static centre's |coordinates|
+    for row in range(len(radii)):
+        widest = max(widest, radii[row] + margins[row] + extents[row, 0] + extents[row, 1]
+                     + extents[row, 2])
+        if row >= count:
+            farthest_static = max(farthest_static, abs(centers[row, 0]) + abs(centers[row, 1])
+                                  + abs(centers[row, 2]))
+    link_rotations, link_translations = link_frames(model)
+    oriented = np.full(count, -1)  # the state each box was last oriented for
+    most = len(pairs)
+    candidates = np.empty((most, 3), np.int64)  # the SAT's pairs of rows, and each one's pair
+    status = np.empty(most, np.int8)
+    depth = np.empty(most)
+    normal = np.empty((most, 3))
+    point = np.empty((most, 3))
+    out = np.empty(max(most, 1), STATE_CONTACT_DTYPE)  # grown when full
+    reported = passed = sat_tests = 0
+    for state in range(first_state, stop_state):
+        q = states[state]
+        for j in range(q.shape[0]):
+            if not math.isfinite(q[j]):
+                return _failed(state, NON_FINITE_JOINT, NON_FINITE_POSE, 0)
+        link_transforms(model, base_pose, q, link_rotations, link_translations)
+        farthest = farthest_static
+        for b in range(count):
+            c = box_center(model, link_rotations, link_translations, b)
+            for m in range(3):
+                if not math.isfinite(c[m]):
+                    return _failed(state, b, NON_FINITE_POSE, 0)
+                if abs(c[m]) > MAX_COORDINATE:
+                    return _failed(state, b, OUT_OF_RANGE, 0)
+                centers[b, m] = c[m]
+            farthest = max(farthest, abs(c[0]) + abs(c[1]) + abs(c[2]))
+        tie = TIE_ULPS * EPS * 2.0 * (widest + farthest)
+        n = 0
+        for p in range(most):
+            a, b = pairs[p, 0], pairs[p, 1]
+            d = (centers[a, 0] - centers[b, 0], centers[a, 1] - centers[b, 1],
+                 centers[a, 2] - centers[b, 2])
+            if b < count:  # two robot boxes: their bounding spheres
+                reach = radii[a] + radii[b] + tie
+                if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > reach * reach:
+                    continue
+            elif _beyond_box(d, matrix(rotations, b),
+                             (extents[b, 0], extents[b, 1], extents[b, 2]),
+                             radii[a] + pad + margins[b] + tie):
+                continue
+            for box in (a, b):
+                if box < count and oriented[box] != state:
+                    oriented[box] = state
+                    _orient(box, box_rotation(model, link_rotations, box), centers, rotations,
+                            aabbs, model.half_extents, pad)
+            if not aabbs_overlap(aabbs, a, b):
+                continue
+            candidates[n, 0], candidates[n, 1], candidates[n, 2] = a, b, p
+            n += 1
+        passed += n
+        if settings[HAS_MARGIN] != 0.0:
+            sat_tests += collide_pair_rows(centers, rotations, extents, radii, candidates[:n],
+                                           False, settings[MARGIN], margins, status, depth,
+                                           normal, point)
+        else:
+            sat_tests += collide_pair_rows(centers, rotations, extents, radii, candidates[:n],
+                                           False, None, None, status, depth, normal, point)
+        if len(out) - reported < n:
+            out = _grown(out, reported + n)
+        for k in range(n):
+            if status[k] == INVALID:
+                return _failed(state, -1, VALID, 1)
+            if status[k] == COLLIDING or status[k] == NEAR:
+                p = candidates[k, 2]
+                write_contact(out[reported], (point[k, 0], point[k, 1], point[k, 2]),
+                              (normal[k, 0], normal[k, 1], normal[k, 2]), depth[k], 1.0,
+                              keys[p, 0], keys[p, 2], keys[p, 1])
+                out[reported].state = state
+                reported += 1
+    return out[:reported], (passed, sat_tests), -1, -1, VALID, 0
+
+
+@kernel
+def _failed(state, box, code, invalid):
+    """Return check_robot_states' answer for a state that failed."""
+    return np.empty(0, STATE_CONTACT_DTYPE), (0, 0), state, box, code, invalid
+
+
+@kernel
+def _rows(half_extents, static_boxes, pad):
+    """Return the pass's box rows: B robot rows (placed per state), then the static rows.
+
+    (centers, rotations, extents, aabbs, radii, margins), as sat.collide_pair_rows reads them:
+    the robot's radii padded as the one pass pads its bodies', their margins 0.
+    """
+    count, n_static = half_extents.shape[0], static_boxes.shape[0]
+    rows = count + n_static
+    centers, rotations = np.empty((rows, 3)), np.empty((rows, 3, 3))
+    extents, aabbs = np.empty((rows, 3)), np.empty((rows, 2, 3))
+    radii, margins = np.empty(rows), np.zeros(rows)
+    for b in range(count):
+        h = half_extents[b]
+        extents[b] = h
+        radii[b] = math.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]) + pad
+    for s in range(n_static):
+        row, box = count + s, static_boxes[s]
+        for m in range(3):
+            centers[row, m] = box[CENTER + m]
+            extents[row, m] = box[EXTENTS + m]
+            aabbs[row, 0, m] = box[LOW + m]
+            aabbs[row, 1, m] = box[HIGH + m]
+            for n in range(3):
+                rotations[row, m, n] = box[ROTATION + 3 * m + n]
+        radii[row] = box[RADIUS]
+        margins[row] = box[OWN_MARGIN]
+    return centers, rotations, extents, aabbs, radii, margins
+
+
+@kernel
+def _orient(b, r, centers, rotations, aabbs, half_extents, pad):
+    """Write robot box b's rotation and AABB as a step makes them from its pose.
+
+    ``r`` its rotation from the link frames (robot.box_rotation): its pose holds the
+    quaternion of it (robot.forward_kinematics), and a step turns that quaternion back into
+    the rotation the SAT tests (obb.box_axes); the AABB padded as the one pass pads a body's.
+    """
+    c = (centers[b, 0], centers[b, 1], centers[b, 2])
+    h = (half_extents[b, 0], half_extents[b, 1], half_extents[b, 2])
+    axes, reach = box_axes(c + quaternion_from_rotation(*r), h)
+    for m in range(3):
+        for n in range(3):
+            rotations[b, m, n] = axes[3 * m + n]
+        aabbs[b, 0, m] = c[m] - reach[m] - pad
+        aabbs[b, 1, m] = c[m] + reach[m] + pad
+
+
+@kernel
+def _beyond_box(d, r, e, reach):
+    """Whether the point ``d`` from a box's centre lies farther than ``reach`` outside it.
+
+    ``r`` the box's rotation (row-major 9-tuple), ``e`` its half extents: the distance is that
+    of the part of each coordinate in the box's frame beyond the half extent. The culls ask
+    it of a robot box's centre with ``reach`` its radius (padded by half the margin), the
+    other half and the static box's own margin, and the rounding allowed.
+    """
+    x = abs(r[0] * d[0] + r[3] * d[1] + r[6] * d[2]) - e[0]
+    y = abs(r[1] * d[0] + r[4] * d[1] + r[7] * d[2]) - e[1]
+    z = abs(r[2] * d[0] + r[5] * d[1] + r[8] * d[2]) - e[2]
+    x, y, z = max(x, 0.0), max(y, 0.0), max(z, 0.0)
+    return x * x + y * y + z * z > reach * reach
+
+
+@kernel
+def _grown(out, needed):
+    more = np.empty(max(2 * len(out), needed), STATE_CONTACT_DTYPE)
+    more[:len(out)] = out
+    return more
