@@ -12,6 +12,7 @@ REPO = pathlib.Path(__file__).resolve().parent.parent
 # Records its arguments, one call a line; exits 0 as pip does when all went well.
 RECORDING_PYTHON = '#!/bin/sh\necho "$@" >> "$(dirname "$0")/../calls"\n'
 INSTALL = ['-m', 'pip', 'install']
+UV_INSTALL = ['-m', 'uv', 'pip']
 COMPILE = '-m collision_node.tools.compile_kernels'
 
 
@@ -45,8 +46,14 @@ def edit_after_compile(root, path):
 def test_a_second_run_does_nothing(tmp_path):
     calls = make_copy(tmp_path)
     first = setup_venv(tmp_path, calls)
-    assert [call.split()[:3] for call in first[:2]] == [INSTALL, INSTALL]
-    assert first[1].endswith(' -e .') and first[2:] == [COMPILE]
+    # pip installs uv, uv the core, pip the package; then the compile and uv's install of the
+    # tools run together, in either order.
+    assert [call.split()[:3] for call in first[:3]] == [INSTALL, UV_INSTALL, INSTALL]
+    assert first[0].endswith(' uv') and first[2].endswith(' -e .')
+    assert ' numba ' in first[1] and ' ray ' not in first[1]
+    tools = [call for call in first[3:] if call != COMPILE]
+    assert len(first) == 5 and COMPILE in first[3:] and len(tools) == 1
+    assert tools[0].split()[:3] == UV_INSTALL and ' numba ' in tools[0] and ' ray ' in tools[0]
     assert setup_venv(tmp_path, calls) == []
 
 
@@ -63,7 +70,7 @@ def test_a_changed_setup_py_installs_and_compiles_again(tmp_path):
     setup_venv(tmp_path, calls)
     with open(tmp_path / 'setup.py', 'a') as setup_py:
         setup_py.write('# a new entry point, say\n')
-    assert len(setup_venv(tmp_path, calls)) == 3
+    assert len(setup_venv(tmp_path, calls)) == 5
 
 
 def test_a_failed_step_is_tried_again(tmp_path):
@@ -71,7 +78,32 @@ def test_a_failed_step_is_tried_again(tmp_path):
     python = tmp_path / '.venv' / 'bin' / 'python'
     python.write_text(RECORDING_PYTHON + 'exit 1\n')  # pip fails, e.g. PyPI out of reach
     assert len(setup_venv(tmp_path, calls, expect_success=False)) == 1
-    python.write_text(RECORDING_PYTHON + '[ "$2" = pip ] || exit 1\n')  # the compile fails
-    assert len(setup_venv(tmp_path, calls, expect_success=False)) == 3
+    python.write_text(RECORDING_PYTHON + '[ "$2" != uv ]\n')  # so does uv
+    assert len(setup_venv(tmp_path, calls, expect_success=False)) == 2
+    python.write_text(RECORDING_PYTHON + '[ "$2" != collision_node.tools.compile_kernels ]\n')
+    # The compile fails; the installs went on meanwhile.
+    assert len(setup_venv(tmp_path, calls, expect_success=False)) == 5
     python.write_text(RECORDING_PYTHON)
     assert setup_venv(tmp_path, calls) == [COMPILE]
+
+
+def test_a_failed_tools_install_fails_the_set_up_and_is_tried_again(tmp_path):
+    calls = make_copy(tmp_path)
+    python = tmp_path / '.venv' / 'bin' / 'python'
+    python.write_text(RECORDING_PYTHON + 'case "$*" in *" ray "*) exit 1;; esac\n')
+    # The compile, started beside the install, may be stopped before it records its call.
+    assert len(setup_venv(tmp_path, calls, expect_success=False)) in (4, 5)
+    python.write_text(RECORDING_PYTHON)
+    assert len(setup_venv(tmp_path, calls)) == 5
+
+
+def test_a_core_package_the_tools_replace_compiles_again(tmp_path):
+    calls = make_copy(tmp_path)
+    site = tmp_path / '.venv' / 'lib' / 'python3.11' / 'site-packages'
+    (site / 'numpy-2.0.0.dist-info').mkdir(parents=True)
+    python = tmp_path / '.venv' / 'bin' / 'python'
+    python.write_text(RECORDING_PYTHON + 'case "$*" in *" ray "*) mv "%s/numpy-2.0.0.dist-info" '
+                      '"%s/numpy-1.26.0.dist-info";; esac\n' % (site, site))
+    first = setup_venv(tmp_path, calls)
+    assert len(first) == 6 and first[-1] == COMPILE and first.count(COMPILE) == 2
+    assert setup_venv(tmp_path, calls) == []
