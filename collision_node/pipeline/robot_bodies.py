@@ -155,15 +155,20 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs
     cleared = np.empty(len(pairs))  # the pair is proven free on [0, cleared]
     from_end = np.empty(len(pairs))  # and on [from_end, 1]
     pending = np.empty(len(pairs), np.int64)
+    # Joint by joint, each over every pair: the sums vectorise across pairs (each pair's
+    # sum still adds its joints in order).
+    radii_by_joint = np.ascontiguousarray(pair_radii.T)
     for k in range(waypoints.shape[0] - 1):
         end_placed = False
         waiting = 0
+        motions[:] = 0.0
+        for j in range(dof):
+            step = abs(waypoints[k + 1, j] - waypoints[k, j])
+            for p in range(len(pairs)):
+                motions[p] += step * radii_by_joint[j, p]
         for p in range(len(pairs)):
             a, b = pairs[p, 0], pairs[p, 1]
-            motion = 0.0
-            for j in range(dof):
-                motion += abs(waypoints[k + 1, j] - waypoints[k, j]) * pair_radii[p, j]
-            motion *= MOTION_SAFETY
+            motion = motions[p] * MOTION_SAFETY
             motions[p] = motion
             if credit[p] - margins[p] > motion:
                 credit[p] -= motion

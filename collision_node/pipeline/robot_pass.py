@@ -169,10 +169,16 @@ def check_robot_states(states, model_ints, model_floats, base_pose, pairs, keys,
                 reach = radii[a] + radii[b] + tie
                 if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > reach * reach:
                     continue
-            elif _beyond_box(d, matrix(rotations, b),
-                             (extents[b, 0], extents[b, 1], extents[b, 2]),
-                             radii[a] + pad + margins[b] + tie):
-                continue
+            else:  # a robot box's sphere against the static box's AABB, then the box itself
+                reach = radii[a] + tie
+                if not (aabbs[b, 0, 0] - reach <= centers[a, 0] <= aabbs[b, 1, 0] + reach
+                        and aabbs[b, 0, 1] - reach <= centers[a, 1] <= aabbs[b, 1, 1] + reach
+                        and aabbs[b, 0, 2] - reach <= centers[a, 2] <= aabbs[b, 1, 2] + reach):
+                    continue
+                if _beyond_box(d, matrix(rotations, b),
+                               (extents[b, 0], extents[b, 1], extents[b, 2]),
+                               reach + pad + margins[b]):
+                    continue
             for box in (a, b):
                 if box < count and oriented[box] != state:
                     oriented[box] = state
