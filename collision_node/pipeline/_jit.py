@@ -49,6 +49,18 @@ def kernel(function):
     return dispatcher
 
 
+def inlined_kernel(function):
+    """Compile ``function`` with the package's JIT options, inlined into each caller.
+
+    For a small helper handed arrays in a hot loop: a call numba does not inline
+    reference-counts every array it is handed (a RobotModel is 15), which can cost more than
+    the helper's work. numba inlines it into its callers' code instead (inline='always').
+    """
+    dispatcher = _njit(function, dict(JIT_OPTIONS, inline='always'))
+    KERNELS.add(dispatcher)
+    return dispatcher
+
+
 def _njit(function, options):
     try:
         return numba.njit(**options)(function)

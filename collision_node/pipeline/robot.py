@@ -58,7 +58,7 @@ from typing import NamedTuple
 import numpy as np
 
 from collision_node.pipeline import meshes, urdf
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 
 # Joint type codes in RobotModel.joint_types (continuous is revolute without limits).
 FIXED = 0
@@ -578,37 +578,45 @@ def forward_kinematics(model, base_pose, q, out, rotations, translations):
         out[b, 3], out[b, 4], out[b, 5], out[b, 6] = quaternion_from_rotation(*r)
 
 
-@kernel
+@inlined_kernel
 def box_frame(model, rotations, translations, b):
     """Return box b's centre (3-tuple) and rotation (row-major 9-tuple) from the link frames."""
     return box_center(model, rotations, translations, b), box_rotation(model, rotations, b)
 
 
-@kernel
+@inlined_kernel
 def box_center(model, rotations, translations, b):
-    """Return box b's centre (3-tuple) from the link frames."""
+    """Return box b's centre (3-tuple) from the link frames.
+
+    Indexed entry by entry, never through a row view: each view of an array costs a
+    reference count, more than the arithmetic here.
+    """
     link = model.box_links[b]
-    r = rotations[link]
-    t = model.box_translations[b]
-    return (translations[link, 0] + r[0, 0] * t[0] + r[0, 1] * t[1] + r[0, 2] * t[2],
-            translations[link, 1] + r[1, 0] * t[0] + r[1, 1] * t[1] + r[1, 2] * t[2],
-            translations[link, 2] + r[2, 0] * t[0] + r[2, 1] * t[1] + r[2, 2] * t[2])
+    t = model.box_translations
+    return (translations[link, 0] + rotations[link, 0, 0] * t[b, 0]
+            + rotations[link, 0, 1] * t[b, 1] + rotations[link, 0, 2] * t[b, 2],
+            translations[link, 1] + rotations[link, 1, 0] * t[b, 0]
+            + rotations[link, 1, 1] * t[b, 1] + rotations[link, 1, 2] * t[b, 2],
+            translations[link, 2] + rotations[link, 2, 0] * t[b, 0]
+            + rotations[link, 2, 1] * t[b, 1] + rotations[link, 2, 2] * t[b, 2])
 
 
-@kernel
+@inlined_kernel
 def box_rotation(model, rotations, b):
-    """Return box b's rotation (row-major 9-tuple) from the link frames."""
-    r = rotations[model.box_links[b]]
-    m = model.box_rotations[b]
-    return (r[0, 0] * m[0, 0] + r[0, 1] * m[1, 0] + r[0, 2] * m[2, 0],
-            r[0, 0] * m[0, 1] + r[0, 1] * m[1, 1] + r[0, 2] * m[2, 1],
-            r[0, 0] * m[0, 2] + r[0, 1] * m[1, 2] + r[0, 2] * m[2, 2],
-            r[1, 0] * m[0, 0] + r[1, 1] * m[1, 0] + r[1, 2] * m[2, 0],
-            r[1, 0] * m[0, 1] + r[1, 1] * m[1, 1] + r[1, 2] * m[2, 1],
-            r[1, 0] * m[0, 2] + r[1, 1] * m[1, 2] + r[1, 2] * m[2, 2],
-            r[2, 0] * m[0, 0] + r[2, 1] * m[1, 0] + r[2, 2] * m[2, 0],
-            r[2, 0] * m[0, 1] + r[2, 1] * m[1, 1] + r[2, 2] * m[2, 1],
-            r[2, 0] * m[0, 2] + r[2, 1] * m[1, 2] + r[2, 2] * m[2, 2])
+    """Return box b's rotation (row-major 9-tuple) from the link frames (as box_center)."""
+    link = model.box_links[b]
+    m = model.box_rotations
+    r00, r01, r02 = rotations[link, 0, 0], rotations[link, 0, 1], rotations[link, 0, 2]
+    r10, r11, r12 = rotations[link, 1, 0], rotations[link, 1, 1], rotations[link, 1, 2]
+    r20, r21, r22 = rotations[link, 2, 0], rotations[link, 2, 1], rotations[link, 2, 2]
+    m00, m01, m02 = m[b, 0, 0], m[b, 0, 1], m[b, 0, 2]
+    m10, m11, m12 = m[b, 1, 0], m[b, 1, 1], m[b, 1, 2]
+    m20, m21, m22 = m[b, 2, 0], m[b, 2, 1], m[b, 2, 2]
+    return (r00 * m00 + r01 * m10 + r02 * m20, r00 * m01 + r01 * m11 + r02 * m21,
+            r00 * m02 + r01 * m12 + r02 * m22, r10 * m00 + r11 * m10 + r12 * m20,
+            r10 * m01 + r11 * m11 + r12 * m21, r10 * m02 + r11 * m12 + r12 * m22,
+            r20 * m00 + r21 * m10 + r22 * m20, r20 * m01 + r21 * m11 + r22 * m21,
+            r20 * m02 + r21 * m12 + r22 * m22)
 
 
 @kernel
@@ -640,6 +648,19 @@ def unpack_model(ints, floats):
     return RobotModel(order, parents, origin_translations, origin_rotations, joint_types, axes,
                       q_indices, multipliers, offsets, joint_limits, box_links,
                       box_translations, box_rotations, half_extents, motion_radii)
+
+
+@inlined_kernel
+def write_box(b, center, r, half, centers, rotations, extents):
+    """Write box b's centre (3-tuple), rotation (row-major 9-tuple) and ``half`` extents.
+
+    Entry by entry: a tuple indexed in a loop is not unrolled, and costs more than the box.
+    """
+    centers[b, 0], centers[b, 1], centers[b, 2] = center
+    rotations[b, 0, 0], rotations[b, 0, 1], rotations[b, 0, 2] = r[0], r[1], r[2]
+    rotations[b, 1, 0], rotations[b, 1, 1], rotations[b, 1, 2] = r[3], r[4], r[5]
+    rotations[b, 2, 0], rotations[b, 2, 1], rotations[b, 2, 2] = r[6], r[7], r[8]
+    extents[b, 0], extents[b, 1], extents[b, 2] = half[0], half[1], half[2]
 
 
 @kernel

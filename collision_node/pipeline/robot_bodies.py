@@ -37,7 +37,7 @@ from collision_node.pipeline.frames import matrix, relative_pose, sum_abs
 from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS
 from collision_node.pipeline.robot import (box_frame, box_poses_of_states, IDENTITY_POSE,
                                            link_frames, link_transforms, pack_model,
-                                           unpack_model)
+                                           unpack_model, write_box)
 from collision_node.pipeline.sat import COLLIDING, SEPARATED, separating_axis_test
 
 # What a segment's row takes from the exact contact at its toi, when its pair collides there.
@@ -254,11 +254,7 @@ def _place(model, base_pose, start, end, s, scratch, boxes):
     link_transforms(model, base_pose, q, link_rotations, link_translations)
     for b in range(model.half_extents.shape[0]):
         center, r = box_frame(model, link_rotations, link_translations, b)
-        for i in range(3):
-            centers[b, i] = center[i]
-            extents[b, i] = model.half_extents[b, i]
-            rotations[b, i, 0], rotations[b, i, 1], rotations[b, i, 2] = \
-                r[3 * i], r[3 * i + 1], r[3 * i + 2]
+        write_box(b, center, r, model.half_extents[b], centers, rotations, extents)
 
 
 @kernel
