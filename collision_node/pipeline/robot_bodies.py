@@ -126,8 +126,8 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs
                            margins, boxes, resolution):
     """Return, per segment and pair, where the first configuration not proven free lies.
 
-    ``boxes`` (centers, rotations, extents): rows 0..B-1 are written here for the robot's
-    boxes, the static boxes follow them. ``pairs`` (P, 2) rows of ``boxes``, the first one a
+    ``boxes`` (centers, rotations, extents): rows 0..B-1 for the robot's boxes (placed in
+    copies, so that threads may share ``boxes``), the static boxes after them. ``pairs`` (P, 2) rows of ``boxes``, the first one a
     robot box, ``pair_radii`` (P, dof) their Robot.pair_motion_radii, ``margins`` (P,) the
     distance within which each pair counts (robot_pass.RobotRows holds all four). Returns
     (W - 1, P): s in [0, 1) where the pair comes within ``resolution`` of its margin, or -1
@@ -140,7 +140,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs
     scratch = (np.empty(dof), link_rotations, link_translations)  # q and the link frames
     # The boxes at the segment's start (its first waypoint), end and current configuration,
     # each placed when a pair needs it: the end's placement is the next segment's start.
-    start = boxes
+    start = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())  # ``boxes`` stays unwritten
     end = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     at = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     _place(model, base_pose, waypoints[0], waypoints[0], 0.0, scratch, start)
@@ -155,6 +155,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs
     cleared = np.empty(len(pairs))  # the pair is proven free on [0, cleared]
     from_end = np.empty(len(pairs))  # and on [from_end, 1]
     pending = np.empty(len(pairs), np.int64)
+    untested = np.empty(len(pairs), np.bool_)  # the pairs whose credit falls short
     # Joint by joint, each over every pair: the sums vectorise across pairs (each pair's
     # sum still adds its joints in order).
     radii_by_joint = np.ascontiguousarray(pair_radii.T)
@@ -166,13 +167,19 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs
             step = abs(waypoints[k + 1, j] - waypoints[k, j])
             for p in range(len(pairs)):
                 motions[p] += step * radii_by_joint[j, p]
+        # The credit first, without a branch (it vectorises too); the pairs it leaves are
+        # tested below.
         for p in range(len(pairs)):
-            a, b = pairs[p, 0], pairs[p, 1]
             motion = motions[p] * MOTION_SAFETY
             motions[p] = motion
-            if credit[p] - margins[p] > motion:
-                credit[p] -= motion
+            covered = credit[p] - margins[p] > motion
+            untested[p] = not covered
+            credit[p] = credit[p] - motion if covered else credit[p]
+        for p in range(len(pairs)):
+            if not untested[p]:
                 continue
+            a, b = pairs[p, 0], pairs[p, 1]
+            motion = motions[p]
             if not start_placed:
                 _place(model, base_pose, waypoints[k], waypoints[k], 0.0, scratch, start)
                 start_placed = True
