@@ -127,11 +127,12 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs
     """Return, per segment and pair, where the first configuration not proven free lies.
 
     ``boxes`` (centers, rotations, extents): rows 0..B-1 for the robot's boxes (placed in
-    copies, so that threads may share ``boxes``), the static boxes after them. ``pairs`` (P, 2) rows of ``boxes``, the first one a
-    robot box, ``pair_radii`` (P, dof) their Robot.pair_motion_radii, ``margins`` (P,) the
-    distance within which each pair counts (robot_pass.RobotRows holds all four). Returns
-    (W - 1, P): s in [0, 1) where the pair comes within ``resolution`` of its margin, or -1
-    (the whole segment is proven free). The model as robot.pack_model packs it.
+    copies, so that threads may share ``boxes``), the static boxes after them. ``pairs``
+    (P, 2) rows of ``boxes``, the first one a robot box, ``pair_radii`` (P, dof) their
+    Robot.pair_motion_radii, ``margins`` (P,) the distance within which each pair counts
+    (robot_pass.RobotRows holds all four). Returns (W - 1, P): s in [0, 1) where the pair
+    comes within ``resolution`` of its margin, or -1 (the whole segment is proven free). The
+    model as robot.pack_model packs it.
     """
     model = unpack_model(model_ints, model_floats)
     dof = waypoints.shape[1]
