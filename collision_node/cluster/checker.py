@@ -114,7 +114,12 @@ def rows_copy(contacts):
 
 
 def rows_concatenated(parts):
-    """Return the contacts arrays ``parts`` (one dtype, at least one) end to end."""
+    """Return the contacts arrays ``parts`` (one dtype, at least one) end to end.
+
+    One part is returned as it is, read-only as Ray hands it over: no copy for one chunk.
+    """
+    if len(parts) == 1:
+        return parts[0]
     return np.concatenate([np.ascontiguousarray(part).view(np.uint8) for part in parts]) \
         .view(parts[0].dtype)
 
