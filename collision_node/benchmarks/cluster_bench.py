@@ -5,8 +5,9 @@
 1. 10^6 states of the 7-box arm (config/arm.yaml, benchmarks/robot.py) through a
    ClusterChecker of 1 local worker, then of 2, in the same run: states/s and their ratio.
    With the caller's CPU time per chunk (validating, putting the chunk into Ray's object
-   store, assembling the answer): the caller shares the two cores with the workers, so 2
-   workers can at best reach 2 t1 / (t1 + caller), t1 one worker's time per chunk.
+   store, assembling the answer): the caller shares the two cores with the workers, so on
+   two cores doing nothing else 2 workers can at best reach 2 t1 / (t1 + caller), t1 one
+   worker's time per chunk.
 2. One chunk of 10^4 states through one actor against the same chunk in this process: the
    overhead. Like for like: both Worlds are built from the same description with 1 thread
    (the checker's default ``threads``), both are warm (a first call, untimed), and the calls
@@ -143,7 +144,8 @@ def main(argv=None):
           % (len(states), one, two))
     ratio, per_chunk = two / one, CHUNK / one
     print('speed-up 2 workers / 1: %.2fx (target >= %.1fx: %s); the caller used %.1f ms CPU '
-          'a chunk with 2 workers, one worker took %.1f ms a chunk: at best %.2fx on 2 cores'
+          'a chunk with 2 workers, one worker took %.1f ms a chunk: 2 otherwise idle cores '
+          'allow %.2fx'
           % (ratio, SPEED_UP_TARGET, verdict(ratio, SPEED_UP_TARGET, False), 1e3 * caller,
              1e3 * per_chunk, 2 * per_chunk / (per_chunk + caller)))
     overhead = remote / in_process - 1.0
