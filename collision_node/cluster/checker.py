@@ -41,8 +41,9 @@ _LOST = (RayActorError, WorkerCrashedError, OutOfMemoryError)
 STATES, JOINTS = 'states', 'joints'
 # A worker's glibc keeps the memory a chunk frees for the next chunk rather than handing it
 # back to the system: otherwise a Ray worker page-faults again on every chunk's few MB (its
-# input's copy, the World's buffers, the contacts; about 900 faults, 30-40 % of a 10^4-state
-# chunk's check on the benchmark's VM), which the caller's own World, warm, does not.
+# input's copy, the World's buffers, the contacts: about 900 faults, and a 10^4-state chunk
+# of the arm took 17-25 ms against 11 ms on the benchmark's VM), which a warm World in the
+# caller's process does not.
 # Ignored where malloc is not glibc's. Costs a worker up to the trim threshold of kept memory.
 _WORKER_ENV = {'env_vars': {'MALLOC_MMAP_THRESHOLD_': str(32 << 20),
                             'MALLOC_TRIM_THRESHOLD_': str(128 << 20)}}
