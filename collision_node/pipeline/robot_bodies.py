@@ -122,17 +122,19 @@ def segment_contacts(world, bodies, waypoints, exact, found, keys):
 
 
 @kernel
-def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs, pair_radii,
-                           margins, boxes, resolution):
+def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frames, pairs,
+                           pair_radii, margins, boxes, resolution):
     """Return, per segment and pair, where the first configuration not proven free lies.
 
     ``boxes`` (centers, rotations, extents): rows 0..B-1 for the robot's boxes (placed in
     copies, so that threads may share ``boxes``), the static boxes after them. ``pairs``
     (P, 2) rows of ``boxes``, the first one a robot box, ``pair_radii`` (P, dof) their
     Robot.pair_motion_radii, ``margins`` (P,) the distance within which each pair counts
-    (robot_pass.RobotRows holds all four). Returns (W - 1, P): s in [0, 1) where the pair
-    comes within ``resolution`` of its margin, or -1 (the whole segment is proven free). The
-    model as robot.pack_model packs it.
+    (robot_pass.RobotRows holds all four). ``frames`` the waypoints' link frames
+    (rotations (W, L, 3, 3), translations (W, L, 3)) as the waypoints' check kept them
+    (robot_pass.check_robot_states), or none (empty): then they are computed here. Returns
+    (W - 1, P): s in [0, 1) where the pair comes within ``resolution`` of its margin, or -1
+    (the whole segment is proven free). The model as robot.pack_model packs it.
     """
     model = unpack_model(model_ints, model_floats)
     dof = waypoints.shape[1]
@@ -144,7 +146,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs
     start = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())  # ``boxes`` stays unwritten
     end = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     at = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
-    _place(model, base_pose, waypoints[0], waypoints[0], 0.0, scratch, start)
+    _place_waypoint(model, base_pose, waypoints, frames, 0, scratch, start)
     radii = np.sqrt(np.sum(start[2] * start[2], axis=1))  # half diagonals: the boxes' spheres
     start_placed = True
     # A lower bound on each pair's distance at the segment's start: what a test there or at
@@ -182,7 +184,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs
             a, b = pairs[p, 0], pairs[p, 1]
             motion = motions[p]
             if not start_placed:
-                _place(model, base_pose, waypoints[k], waypoints[k], 0.0, scratch, start)
+                _place_waypoint(model, base_pose, waypoints, frames, k, scratch, start)
                 start_placed = True
             enough = margins[p] + max(motion, resolution)
             bound = _sphere_gap(start[0], radii, a, b)
@@ -198,7 +200,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs
                 continue
             cleared[p] = free / motion * SHRINK
             if not end_placed:
-                _place(model, base_pose, waypoints[k + 1], waypoints[k + 1], 0.0, scratch, end)
+                _place_waypoint(model, base_pose, waypoints, frames, k + 1, scratch, end)
                 end_placed = True
             enough = margins[p] + motion * (1.0 - cleared[p])
             bound = _sphere_gap(end[0], radii, a, b)
@@ -249,17 +251,32 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, pairs
 
 
 @kernel
+def _place_waypoint(model, base_pose, waypoints, frames, k, scratch, boxes):
+    """Write the robot's boxes at waypoint k into rows 0..B-1 of boxes, from its kept frames."""
+    if len(frames[0]):
+        _write_robot_boxes(model, frames[0][k], frames[1][k], boxes)
+    else:
+        _place(model, base_pose, waypoints[k], waypoints[k], 0.0, scratch, boxes)
+
+
+@kernel
 def _place(model, base_pose, start, end, s, scratch, boxes):
-    """Write the robot's boxes at q(s) = start + s (end - start) into rows 0..B-1 of boxes.
+    """Write the robot's boxes at q(s) = start + s (end - start) into rows 0..B-1 of boxes."""
+    q, link_rotations, link_translations = scratch
+    for j in range(q.shape[0]):
+        q[j] = start[j] + s * (end[j] - start[j])
+    link_transforms(model, base_pose, q, link_rotations, link_translations)
+    _write_robot_boxes(model, link_rotations, link_translations, boxes)
+
+
+@kernel
+def _write_robot_boxes(model, link_rotations, link_translations, boxes):
+    """Write the robot's boxes from the link frames into rows 0..B-1 of boxes.
 
     Straight from the link frames: a proof needs the boxes where they are, not the pose
     a step would be handed, so the rotation skips the quaternion a pose holds.
     """
-    q, link_rotations, link_translations = scratch
     centers, rotations, extents = boxes
-    for j in range(q.shape[0]):
-        q[j] = start[j] + s * (end[j] - start[j])
-    link_transforms(model, base_pose, q, link_rotations, link_translations)
     for b in range(model.half_extents.shape[0]):
         center, r = box_frame(model, link_rotations, link_translations, b)
         write_box(b, center, r, model.half_extents[b], centers, rotations, extents)

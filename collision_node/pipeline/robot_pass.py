@@ -50,6 +50,8 @@ STATIC_COLUMNS = 23
 MARGIN, PAD, HAS_MARGIN = range(3)
 # The "body" of a failed state whose q holds a NaN or Inf.
 NON_FINITE_JOINT = -2
+# check_robot_states' frames when they are not kept.
+NO_FRAMES = (np.empty((0, 0, 3, 3)), np.empty((0, 0, 3)))
 
 
 class RobotRows:
@@ -101,20 +103,25 @@ class RobotRows:
         self.filtered = self.all_pairs - len(j)  # pairs the filters leave out
         self.one_state = (bodies.robot.dof,)  # the shape of one state's q
 
-    def check(self, states, first_state, stop_state):
-        """Return check_robot_states' answer for states ``[first_state, stop_state)``."""
+    def check(self, states, first_state, stop_state, frames=None):
+        """Return check_robot_states' answer for states ``[first_state, stop_state)``.
+
+        ``frames`` (link rotations (K, L, 3, 3), translations (K, L, 3)): where to keep each
+        state's link frames (a trajectory's segments start from them); None: not kept.
+        """
         model_ints, model_floats = self.bodies.packed_model
         return check_robot_states(states, model_ints, model_floats, self.bodies.base_pose,
                                   self.pairs, self.keys, self.static_boxes, self.settings,
-                                  first_state, stop_state)
+                                  first_state, stop_state, NO_FRAMES if frames is None else frames)
 
 
 @kernel
 def check_robot_states(states, model_ints, model_floats, base_pose, pairs, keys, static_boxes,
-                       settings, first_state, stop_state):
+                       settings, first_state, stop_state, frames):
     """Check joint states ``[first_state, stop_state)`` of ``states`` (K, dof) (module docstring).
 
-    Arguments as RobotRows holds them; the model as robot.pack_model packs it. Returns
+    Arguments as RobotRows holds them; the model as robot.pack_model packs it; each state's
+    link frames are written to ``frames`` (RobotRows.check) unless it holds none. Returns
     (contacts with their state, (pairs the culls passed, SAT tests), first failed state
     or -1, its box (NON_FINITE_JOINT: its q), obb reason code, 1 if the SAT met NaN).
     """
@@ -148,6 +155,8 @@ def check_robot_states(states, model_ints, model_floats, base_pose, pairs, keys,
         for j in range(q.shape[0]):
             if not math.isfinite(q[j]):
                 return _failed(state, NON_FINITE_JOINT, NON_FINITE_POSE, 0)
+        if len(frames[0]):
+            link_rotations, link_translations = frames[0][state], frames[1][state]
         link_transforms(model, base_pose, q, link_rotations, link_translations)
         farthest = farthest_static
         for b in range(count):

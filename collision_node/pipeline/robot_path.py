@@ -38,8 +38,12 @@ class RobotPath:
         """Take ``bodies`` (robot_bodies.RobotBodies) as the robot; the World set its filter."""
         self.bodies = bodies
 
-    def check_joints(self, q, one_pass_pairs):
-        """Check the robot at joint values ``q`` as World.check_joints does."""
+    def check_joints(self, q, one_pass_pairs, frames=None):
+        """Check the robot at joint values ``q`` as World.check_joints does.
+
+        ``frames``: where the robot's pass keeps each state's link frames
+        (robot_pass.RobotRows.check); left unwritten when the scene is too large for it.
+        """
         start = time.perf_counter()
         rows = self._rows
         if rows is None or rows.version != self._scene.version or rows.bodies is not self.bodies:
@@ -56,10 +60,10 @@ class RobotPath:
             return self._batches.check(rows.bodies.poses(states), robot.half_extents,
                                        one_pass_pairs)
         if len(states) == 1:
-            parts = [rows.check(states, 0, 1)]
+            parts = [rows.check(states, 0, 1, frames)]
         else:
             parts = self._scene.workers.map_ranges(
-                lambda _, first, stop: rows.check(states, first, stop), len(states),
+                lambda _, first, stop: rows.check(states, first, stop, frames), len(states),
                 MIN_STATES_PER_CHUNK)
         passed = sat_tests = 0
         for _, (part_passed, part_sat_tests), state, box, code, invalid in parts:
@@ -83,23 +87,31 @@ class RobotPath:
         """Return the robot's box poses at joint values ``q``: (K, B, 7), the World's frame."""
         return self._robot_bodies().poses(q)
 
-    def check_trajectory(self, world, waypoints, resolution=DEFAULT_RESOLUTION):
+    def check_trajectory(self, world, waypoints, one_pass_pairs,
+                         resolution=DEFAULT_RESOLUTION):
         """Check a joint-space path as World.check_trajectory does (``world`` checks joints)."""
         bodies = self._robot_bodies()
         waypoints = bodies.robot._states(waypoints)
-        exact = world.check_joints(waypoints).contacts
+        rows = self._robot_rows(bodies)
+        # The waypoints' link frames, kept by their exact check for the segments' ends: their
+        # forward kinematics runs once. Not kept (left empty) beyond the robot's pass.
+        links = len(bodies.robot.link_names)
+        small = rows.all_pairs <= one_pass_pairs
+        frames = (np.empty((len(waypoints) if small else 0, links, 3, 3)),
+                  np.empty((len(waypoints) if small else 0, links, 3)))
+        exact = self.check_joints(waypoints, one_pass_pairs, frames).contacts
         if len(waypoints) < 2:
             return Result(exact, {})
-        rows = self._robot_rows(bodies)
 
         def segments(_, first, stop):
             # A chunk of segments starts without the credit the segments before it carried:
             # its pairs are tested at its first waypoint instead, which proves every pair the
             # credit would have (robot_bodies.py): the same answer, whatever the chunks.
             return first_uncleared_pieces(*bodies.packed_model, bodies.base_pose,
-                                          waypoints[first:stop + 1], rows.pairs,
-                                          rows.motion_radii, rows.margins, rows.boxes,
-                                          max(resolution, 1e-12))
+                                          waypoints[first:stop + 1],
+                                          (frames[0][first:stop + 1], frames[1][first:stop + 1]),
+                                          rows.pairs, rows.motion_radii, rows.margins,
+                                          rows.boxes, max(resolution, 1e-12))
 
         found = np.concatenate(self._scene.workers.map_ranges(segments, len(waypoints) - 1,
                                                               MIN_SEGMENTS_PER_CHUNK))

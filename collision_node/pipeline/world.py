@@ -206,7 +206,7 @@ class World:
         collides there (else depth 0, a zero normal and ``distance`` NaN). Sorted by
         (state, id_a, type_b, id_b, toi).
         """
-        return self._robot.check_trajectory(self, waypoints,
+        return self._robot.check_trajectory(self, waypoints, ONE_PASS_PAIRS,
                                             check_margin(resolution, 'resolution'))
 
     def set_static(self, poses, half_extents, ids=None, margins=0.0,
