@@ -159,6 +159,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
     from_end = np.empty(len(pairs))  # and on [from_end, 1]
     pending = np.empty(len(pairs), np.int64)
     untested = np.empty(len(pairs), np.bool_)  # the pairs whose credit falls short
+    measured = np.zeros(len(pairs), np.bool_)  # credit measured at the segment's start
     # Joint by joint, each over every pair: the sums vectorise across pairs (each pair's
     # sum still adds its joints in order).
     radii_by_joint = np.ascontiguousarray(pair_radii.T)
@@ -178,18 +179,23 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
             covered = credit[p] - margins[p] > motion
             untested[p] = not covered
             credit[p] = credit[p] - motion if covered else credit[p]
+            measured[p] = measured[p] and not covered
         for p in range(len(pairs)):
             if not untested[p]:
                 continue
             a, b = pairs[p, 0], pairs[p, 1]
             motion = motions[p]
-            if not start_placed:
-                _place_waypoint(model, base_pose, waypoints, frames, k, scratch, start)
-                start_placed = True
-            enough = margins[p] + max(motion, resolution)
-            bound = _sphere_gap(start[0], radii, a, b)
-            if bound <= enough:
-                bound = _clearance(start, a, b, bound, enough, True)
+            if measured[p]:  # its exact clearance here, as the segment before ended
+                bound = credit[p]
+            else:
+                if not start_placed:
+                    _place_waypoint(model, base_pose, waypoints, frames, k, scratch, start)
+                    start_placed = True
+                enough = margins[p] + max(motion, resolution)
+                bound = _sphere_gap(start[0], radii, a, b)
+                if bound <= enough:
+                    bound = _clearance(start, a, b, bound, enough, True)
+            measured[p] = False
             free = bound - margins[p]
             if free > motion:
                 credit[p] = bound - motion
@@ -205,9 +211,12 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
             enough = margins[p] + motion * (1.0 - cleared[p])
             bound = _sphere_gap(end[0], radii, a, b)
             if bound <= enough:
-                bound = _clearance(end, a, b, bound, enough, False)
+                bound = _clearance(end, a, b, bound, enough, True)
             free = bound - margins[p]
+            # The next segment starts here: a pair its credit leaves untested takes this
+            # bound (the exact distance when the spheres and the SAT fell short) as its test.
             credit[p] = bound
+            measured[p] = True
             from_end[p] = 1.0 - free / motion * SHRINK if free > 0.0 else 1.0
             if from_end[p] > cleared[p]:
                 pending[waiting] = p
