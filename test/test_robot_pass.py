@@ -152,22 +152,3 @@ def test_a_bad_single_state_is_refused_naming_the_joint_or_box(panda):
     world.set_robot(panda, [1e9, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])  # its boxes beyond 1e9 m
     with pytest.raises(ValueError, match=r'state 0: dynamic body \d+: position beyond'):
         world.check_joints(np.zeros(panda.dof))
-
-
-def test_a_trajectory_over_threads_answers_as_on_one(panda):
-    """Segments cut into chunks over threads: each chunk starts without the carried credit."""
-    limits = panda.joint_limits
-    rng = np.random.default_rng(7)
-    waypoints = rng.uniform(limits[:, 0], limits[:, 1], (150, panda.dof))
-    waypoints[1::2] = 0.9 * waypoints[:-1:2] + 0.1 * waypoints[1::2]  # short segments too
-    answers = []
-    for threads in (1, 2):
-        world = World(threads=threads, margin=0.01)
-        world.set_static(STATIC_POSES, STATIC_HALF_EXTENTS)
-        world.set_robot(panda)
-        answers.append(world.check_trajectory(waypoints).contacts)
-        world.close()
-    one, two = answers
-    assert len(one) == len(two) and np.count_nonzero(one['toi'] > 0.0)
-    for name in one.dtype.names:
-        np.testing.assert_array_equal(one[name], two[name], err_msg=name)

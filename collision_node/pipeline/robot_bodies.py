@@ -127,7 +127,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
     """Return, per segment and pair, where the first configuration not proven free lies.
 
     ``boxes`` (centers, rotations, extents): rows 0..B-1 for the robot's boxes (placed in
-    copies, so that threads may share ``boxes``), the static boxes after them. ``pairs``
+    copies: ``boxes`` is not written), the static boxes after them. ``pairs``
     (P, 2) rows of ``boxes``, the first one a robot box, ``pair_radii`` (P, dof) their
     Robot.pair_motion_radii, ``margins`` (P,) the distance within which each pair counts
     (robot_pass.RobotRows holds all four). ``frames`` the waypoints' link frames

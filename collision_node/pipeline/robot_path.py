@@ -20,9 +20,6 @@ from collision_node.pipeline.robot_bodies import (DEFAULT_RESOLUTION, first_uncl
 from collision_node.pipeline.robot_pass import NON_FINITE_JOINT, RobotRows
 from collision_node.pipeline.stats import one_pass_stats, Result
 
-# Least segments in a chunk when check_trajectory spreads them over threads (a few µs each).
-MIN_SEGMENTS_PER_CHUNK = 32
-
 
 class RobotPath:
     """A robot at a base pose, checked against the scene rows (module docstring)."""
@@ -102,19 +99,9 @@ class RobotPath:
         exact = self.check_joints(waypoints, one_pass_pairs, frames).contacts
         if len(waypoints) < 2:
             return Result(exact, {})
-
-        def segments(_, first, stop):
-            # A chunk of segments starts without the credit the segments before it carried:
-            # its pairs are tested at its first waypoint instead, which proves every pair the
-            # credit would have (robot_bodies.py): the same answer, whatever the chunks.
-            return first_uncleared_pieces(*bodies.packed_model, bodies.base_pose,
-                                          waypoints[first:stop + 1],
-                                          (frames[0][first:stop + 1], frames[1][first:stop + 1]),
-                                          rows.pairs, rows.motion_radii, rows.margins,
-                                          rows.boxes, max(resolution, 1e-12))
-
-        found = np.concatenate(self._scene.workers.map_ranges(segments, len(waypoints) - 1,
-                                                              MIN_SEGMENTS_PER_CHUNK))
+        found = first_uncleared_pieces(*bodies.packed_model, bodies.base_pose, waypoints, frames,
+                                       rows.pairs, rows.motion_radii, rows.margins, rows.boxes,
+                                       max(resolution, 1e-12))
         return Result(segment_contacts(world, bodies, waypoints, exact, found, rows.keys), {})
 
     def _robot_bodies(self):
