@@ -1,6 +1,7 @@
 """The one place where numba JIT flags are set.
 
-Every kernel in the package is decorated with :func:`kernel`, so the flags cannot drift
+Every kernel in the package is decorated with :func:`kernel` (or :func:`inlined_kernel`, the
+same flags, for a small helper numba inlines into its callers), so the flags cannot drift
 between modules. ``fastmath`` stays off everywhere: it lets LLVM assume no NaN/Inf, which
 turns ``np.isnan`` into ``False`` and reassociates the SAT's sums (doc/accuracy.md).
 
