@@ -8,11 +8,11 @@ AABBs, then the filter table). Per state it
 1. runs the forward kinematics to the link frames (robot.link_transforms) and places each
    box's centre;
 2. visits the listed pairs with culls that read only centres: the bounding spheres of two
-   robot boxes, or a robot box's sphere against a static box itself (the distance from the
-   centre to that box: a table under the robot is far from most boxes' centres, not from their
-   spheres' reach of its own sphere). A box is oriented (the quaternion of its pose, then the
-   rotation and AABB a step makes of it: obb.box_axes) only when a pair of it passes, once per
-   state, and then the pair's AABBs are compared;
+   robot boxes, or a robot box's sphere against a static box, first its AABB, then the box
+   itself (the distance from the centre to the box: a large table's bounding sphere would
+   reach every box of the robot above it, the table itself few). A box is oriented (the
+   quaternion of its pose, then the rotation and AABB a step makes of it: obb.box_axes) only
+   when a pair of it passes, once per state, and then the pair's AABBs are compared;
 3. hands the pairs left to the one pass's SAT loop (sat.collide_pair_rows) and writes the
    reported ones as the state's contacts, in the list's order.
 
@@ -21,7 +21,8 @@ SAT's touching tolerance, so it never drops a pair the SAT would report; and the
 boxes a step builds from robot.box_poses (the same centre, quaternion and rotation, bit for
 bit). So each state's contacts are World.step's on its box poses, to the bit. The counters
 differ: ``compared`` counts every pair of a state, ``filtered_pairs`` those the filters
-leave out, ``candidate_pairs`` the listed ones and ``sat_tests`` the ones the culls left.
+leave out, ``candidate_pairs`` the listed pairs the culls left and ``sat_tests`` the SATs
+run on them.
 
 Cost (the Panda over a table, a wall and a shelf: 95 listed pairs, about 6 left by the culls):
 the forward kinematics is a third of a state, the culls a third, the SAT the rest. Arguments
