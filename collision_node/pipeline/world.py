@@ -85,7 +85,7 @@ class World:
         self._one_pass = OnePass(self._rows)
         self._batches = Batches(self._rows)
         self._robot = RobotPath(self._rows, self._batches)
-        self._probe = GeneralPath(self._rows, continuous=False)  # broad_phase_pairs' own
+        self._probe = None  # broad_phase_pairs' own GeneralPath, made at its first call
         self._previous = None  # the poses of the last accepted input (the motion's start)
 
     @property
@@ -298,6 +298,8 @@ class World:
 
     def broad_phase_pairs(self, poses, half_extents):
         """Return a discrete general step's BroadPhasePairs at these poses; changes no step."""
+        if self._probe is None:
+            self._probe = GeneralPath(self._rows, continuous=False)
         return self._probe.broad_phase_pairs(poses, half_extents)
 
     def check_states(self, states, half_extents):
