@@ -72,30 +72,17 @@ def throughput(world, states, half_extents, workers):
 
 def chunk_times(world, chunk, half_extents):
     """Return median s of ``chunk`` in process, through an actor, and Ray's floor for it."""
-    import ray
-
-    from collision_node.cluster import ClusterChecker
+    from collision_node.cluster import ClusterChecker, transport_only
     expected = world.check_states(chunk, half_extents).contacts
     # Ray's floor: the chunk's trip to an actor and the same contacts' trip back, no check.
-    echo = ray.remote(num_cpus=1)(Echo).remote(expected)
+    send = transport_only(expected)
     with ClusterChecker(world, workers=1, chunk=CHUNK) as checker:
         assert np.array_equal(checker.check_states(chunk, half_extents).contacts, expected)
-        ray.get(echo.answer.remote(chunk))
+        send(chunk)
         return alternating_medians([
             lambda: world.check_states(chunk, half_extents),
             lambda: checker.check_states(chunk, half_extents),
-            lambda: ray.get(echo.answer.remote(chunk))])
-
-
-class Echo:
-    """An actor that answers any chunk with the contacts it was given, checking nothing."""
-
-    def __init__(self, contacts):
-        self._contacts = contacts
-
-    def answer(self, chunk):
-        """Return the contacts (``chunk`` only travels)."""
-        return self._contacts
+            lambda: send(chunk)])
 
 
 def panda_paths():

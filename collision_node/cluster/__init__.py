@@ -14,6 +14,7 @@ except ImportError as error:
                       "(pip install '.[ray]', or pip install ray)") from error
 
 from collision_node.cluster.checker import (  # noqa: E402 (after the check for Ray)
-    ClusterChecker, ClusterError, DEFAULT_CHUNK, DEFAULT_IN_FLIGHT, local_ray)
+    ClusterChecker, ClusterError, DEFAULT_CHUNK, DEFAULT_IN_FLIGHT, local_ray, transport_only)
 
-__all__ = ['ClusterChecker', 'ClusterError', 'DEFAULT_CHUNK', 'DEFAULT_IN_FLIGHT', 'local_ray']
+__all__ = ['ClusterChecker', 'ClusterError', 'DEFAULT_CHUNK', 'DEFAULT_IN_FLIGHT', 'local_ray',
+           'transport_only']

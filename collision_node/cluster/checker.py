@@ -125,6 +125,27 @@ def rows_concatenated(parts):
         .view(parts[0].dtype)
 
 
+class _Echo:
+    """An actor that answers any chunk with the contacts it was given, checking nothing."""
+
+    def __init__(self, contacts):
+        self._contacts = contacts
+
+    def answer(self, chunk):
+        """Return the contacts (``chunk`` only travels)."""
+        return self._contacts
+
+
+def transport_only(contacts):
+    """Return ``send(chunk)``: a chunk's trip to an actor and ``contacts``' trip back, no check.
+
+    Ray's floor under a checker's chunk of the same size and answer, for the benchmark
+    (benchmarks/cluster_bench.py) to print beside it.
+    """
+    echo = ray.remote(num_cpus=1)(_Echo).remote(contacts)
+    return lambda chunk: ray.get(echo.answer.remote(chunk))
+
+
 @contextlib.contextmanager
 def local_ray(num_cpus=None):
     """Run a local Ray of ``num_cpus`` CPUs (default: all) for the block; checkers join it."""
