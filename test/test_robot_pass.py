@@ -51,10 +51,10 @@ def assert_as_step(world, robot, states, contacts):
 @pytest.mark.parametrize('margin, own_margins', [(0.0, 0.0), (0.03, 0.0), (0.0, 0.04),
                                                  (0.02, [0.0, 0.05, 0.01])])
 def test_one_state_and_many_answer_as_step_with_every_margin(panda, margin, own_margins):
-    world = World(margin=margin)
+    world = World(margin=margin, threads=2)
     world.set_static(STATIC_POSES, STATIC_HALF_EXTENTS, margins=own_margins)
     world.set_robot(panda, [0.05, 0.1, 0.0, 0.0, 0.0, 0.2588190, 0.9659258])
-    states = random_states(panda, 700, seed=4)  # over MIN_STATES_PER_CHUNK: threads
+    states = random_states(panda, 700, seed=4)  # chunks of MIN_STATES_PER_CHUNK, 2 threads
     contacts = world.check_joints(states).contacts
     assert_as_step(world, panda, states, contacts)
     for k in range(0, 700, 70):
@@ -63,6 +63,7 @@ def test_one_state_and_many_answer_as_step_with_every_margin(panda, margin, own_
         assert len(one) == len(mine) and not np.any(one['state'])
         for name in set(one.dtype.names) - {'state'}:
             np.testing.assert_array_equal(one[name], mine[name], err_msg=name)
+    world.close()
 
 
 def x_axis(quaternion):
