@@ -4,33 +4,14 @@ Its culls read only the boxes' centres and must never drop a pair the SAT report
 state's contacts must be step's to the bit, with margins of every kind, filters, one state
 or many, and boxes that touch a static box to the last bit. Bad joint values are refused.
 """
-import os
-import sysconfig
-
 import numpy as np
 import pytest
 
-from collision_node import Robot, World
+from collision_node import World
 
-PREFIX = os.path.join(sysconfig.get_paths()['purelib'], 'cmeel.prefix')
-PANDA = os.path.join(PREFIX, 'share', 'example-robot-data', 'robots', 'panda_description')
 STATIC_POSES = [[0.5, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0], [0.0, 0.0, -0.06, 0.0, 0.0, 0.0, 1.0],
                 [-0.3, 0.4, 0.5, 0.2, 0.1, 0.0, 0.9747]]
 STATIC_HALF_EXTENTS = [[0.05, 0.3, 0.3], [1.0, 1.0, 0.05], [0.1, 0.12, 0.08]]
-
-
-@pytest.fixture(scope='module')
-def panda():
-    previous = os.environ.get('AMENT_PREFIX_PATH')
-    os.environ['AMENT_PREFIX_PATH'] = PREFIX
-    try:
-        return Robot.from_urdf(os.path.join(PANDA, 'urdf', 'panda.urdf'),
-                               os.path.join(PANDA, 'srdf', 'panda.srdf'))
-    finally:
-        if previous is None:
-            del os.environ['AMENT_PREFIX_PATH']
-        else:
-            os.environ['AMENT_PREFIX_PATH'] = previous
 
 
 def random_states(robot, count, seed):

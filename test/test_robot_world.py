@@ -4,37 +4,18 @@ check_joints is checked against step on the robot's box poses (bit for bit) and 
 python-fcl on the same boxes with the robot's filter; check_trajectory against a dense
 sampled referee (no segment with a sampled collision may go unreported) and by hand.
 """
-import os
-import sysconfig
-
 import fcl
 import numpy as np
 import pytest
 
-from collision_node import Robot, World
+from collision_node import World
 from collision_node.pipeline.contacts import DYNAMIC, STATIC
 from collision_node.pipeline.sat import signed_distance
 
-PREFIX = os.path.join(sysconfig.get_paths()['purelib'], 'cmeel.prefix')
-PANDA = os.path.join(PREFIX, 'share', 'example-robot-data', 'robots', 'panda_description')
 STATIC_POSES = [[0.5, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0],       # a wall in front
                 [0.0, 0.0, -0.06, 0.0, 0.0, 0.0, 1.0],     # the table under the base
                 [-0.3, 0.4, 0.5, 0.2, 0.1, 0.0, 0.9747]]   # a tilted crate
 STATIC_HALF_EXTENTS = [[0.05, 0.3, 0.3], [1.0, 1.0, 0.05], [0.1, 0.12, 0.08]]
-
-
-@pytest.fixture(scope='module')
-def panda():
-    previous = os.environ.get('AMENT_PREFIX_PATH')
-    os.environ['AMENT_PREFIX_PATH'] = PREFIX
-    try:
-        return Robot.from_urdf(os.path.join(PANDA, 'urdf', 'panda.urdf'),
-                               os.path.join(PANDA, 'srdf', 'panda.srdf'))
-    finally:
-        if previous is None:
-            del os.environ['AMENT_PREFIX_PATH']
-        else:
-            os.environ['AMENT_PREFIX_PATH'] = previous
 
 
 def panda_world(robot, base_pose=None, **settings):
