@@ -298,8 +298,7 @@ class World:
 
     def broad_phase_pairs(self, poses, half_extents):
         """Return a discrete general step's BroadPhasePairs at these poses; changes no step."""
-        if self._probe is None:
-            self._probe = GeneralPath(self._rows, continuous=False)
+        self._probe = self._probe or GeneralPath(self._rows, continuous=False)
         return self._probe.broad_phase_pairs(poses, half_extents)
 
     def check_states(self, states, half_extents):
