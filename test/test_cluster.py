@@ -13,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 import ray  # the 'test' extra has it, and CI installs it: no cluster test is skipped
-from test_robot_world import panda, panda_world, random_states  # noqa: F401 (a fixture)
+from test_robot_world import panda_world, random_states
 
 from collision_node import World
 from collision_node.cluster import ClusterChecker, ClusterError
@@ -75,7 +75,7 @@ def test_check_states_equals_one_world(local_ray, settings):
         assert found.stats['chunks'] == 3 and found.stats['states'] == 12
 
 
-def test_check_joints_equals_one_world(local_ray, panda):  # noqa: F811
+def test_check_joints_equals_one_world(local_ray, panda):
     world = panda_world(panda, margin=0.02)
     world.set_filters(ignored_pairs=[(5, 0, 1, 1)])
     q = random_states(panda, 60, seed=1)
@@ -133,7 +133,7 @@ def test_a_worker_killed_mid_batch(local_ray):
         assert np.array_equal(checker.check_states(states, half_extents).contacts, expected)
 
 
-def test_bad_input_raises_before_anything_is_sent(local_ray, panda):  # noqa: F811
+def test_bad_input_raises_before_anything_is_sent(local_ray, panda):
     world, states, half_extents = box_world()
     with ClusterChecker(world, workers=1, restarts=0) as checker:
         ray.kill(checker.workers[0])  # a chunk sent would end in ClusterError
@@ -211,7 +211,7 @@ def expected_labels(contacts, count):
     return labels
 
 
-def test_the_docs_snippet(local_ray, panda):  # noqa: F811
+def test_the_docs_snippet(local_ray, panda):
     from test_readme import python_snippets
     from test_robot_world import STATIC_HALF_EXTENTS, STATIC_POSES
     snippet, = python_snippets(REPO / 'doc' / 'cluster.md')['The checker']
@@ -232,8 +232,9 @@ def assert_labels_equal(found, expected):
         assert np.array_equal(found[name], expected[name], equal_nan=kind is np.float64), name
 
 
-def test_collision_label_writes_the_worlds_labels(local_ray, panda, tmp_path):  # noqa: F811
-    from test_robot_world import PANDA, PREFIX, STATIC_HALF_EXTENTS, STATIC_POSES
+def test_collision_label_writes_the_worlds_labels(local_ray, panda, tmp_path):
+    from conftest import PANDA, PREFIX
+    from test_robot_world import STATIC_HALF_EXTENTS, STATIC_POSES
     statics = [str(value) for pose, half in zip(STATIC_POSES, STATIC_HALF_EXTENTS)
                for value in ['--static'] + pose + half]
     output = tmp_path / 'labels.npy'
