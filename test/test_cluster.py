@@ -9,6 +9,7 @@ import os
 import pathlib
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -35,6 +36,23 @@ def local_ray():
         ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield
     ray.shutdown()
+
+
+def killed(worker):
+    """Kill ``worker`` and return once it is dead.
+
+    ray.kill only asks: an actor answers the chunks queued on it until the kill lands, and a
+    chunk of a few states takes microseconds, so a test that did not wait would race it.
+    """
+    ray.kill(worker)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            ray.get(worker.where.remote(), timeout=30)
+        except ray.exceptions.RayActorError:
+            return
+        time.sleep(0.01)
+    raise AssertionError('the worker still answers 60 s after ray.kill')
 
 
 def box_world(dynamic=6, static=10, seed=0, **settings):
@@ -126,7 +144,7 @@ def test_a_worker_killed_mid_batch(local_ray):
         blocks = [states[:6], states[6:]]
         for first, count, contacts in checker.stream_states(blocks, half_extents):
             if not parts:
-                ray.kill(checker.workers[0])
+                killed(checker.workers[0])
             parts.append(contacts)
         assert np.array_equal(np.concatenate(parts), expected)
         assert checker.restarts == 1 and checker.reruns > 0
@@ -136,7 +154,7 @@ def test_a_worker_killed_mid_batch(local_ray):
 def test_bad_input_raises_before_anything_is_sent(local_ray, panda):
     world, states, half_extents = box_world()
     with ClusterChecker(world, workers=1, restarts=0) as checker:
-        ray.kill(checker.workers[0])  # a chunk sent would end in ClusterError
+        killed(checker.workers[0])  # a chunk sent would end in ClusterError
         bad = states.copy()
         bad[7, 2, 4] = np.nan
         with pytest.raises(ValueError) as refused:
@@ -151,7 +169,7 @@ def test_bad_input_raises_before_anything_is_sent(local_ray, panda):
         with pytest.raises(ClusterError, match='0 of 12 states answered'):
             checker.check_states(states, half_extents)
     with ClusterChecker(panda_world(panda), workers=1, restarts=0) as checker:
-        ray.kill(checker.workers[0])
+        killed(checker.workers[0])
         q = random_states(panda, 5, seed=0)
         q[3, 1] = np.inf
         with pytest.raises(ValueError, match="state 3, joint 'panda_joint2'"):
@@ -166,7 +184,7 @@ def test_every_worker_lost_mid_batch_says_how_many_were_answered(local_ray):
         stream = checker.stream_states([states], half_extents)
         first = next(stream)
         for worker in checker.workers:
-            ray.kill(worker)
+            killed(worker)
         with pytest.raises(ClusterError, match=r'\d+ states answered: every worker is lost'):
             list(stream)
         assert first[0] == 0 and first[1] == 2
