@@ -26,27 +26,30 @@ run on them.
 
 Cost (the Panda over a table, a wall and a shelf: 95 listed pairs, about 6 left by the culls):
 the forward kinematics is a third of a state, the culls a third, the SAT the rest. Arguments
-are few and flat (robot.pack_model; the static boxes one table): numba unboxes each array
-argument on every call, and one state's call would otherwise spend more entering than checking.
+are few and flat (robot.pack_model; the rows and scratch one workspace of two arrays, made
+once per scene version): numba unboxes each array argument on every call (a tuple costs
+several), and a call that allocated its rows and scratch spent more setting up than checking
+one state.
 """
 import math
 
 import numpy as np
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE, STATIC, write_contact
 from collision_node.pipeline.frames import matrix
 from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORDINATE,
                                          NON_FINITE_POSE, OUT_OF_RANGE, TIE_ULPS, VALID)
-from collision_node.pipeline.robot import (box_center, box_rotation, link_frames,
-                                           link_transforms, quaternion_from_rotation,
-                                           unpack_model)
+from collision_node.pipeline.robot import (box_center, box_rotation, link_transforms,
+                                           quaternion_from_rotation, unpack_model)
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
 
 # Columns of RobotRows.static_boxes: a static row's box as the scene rows hold it.
 CENTER, ROTATION, EXTENTS, LOW, HIGH, RADIUS, OWN_MARGIN = 0, 3, 12, 15, 18, 21, 22
 STATIC_COLUMNS = 23
+# Floats of one row in a workspace: centre, rotation, half extents, AABB, radius, margin.
+ROW_FLOATS = 3 + 9 + 3 + 6 + 1 + 1
 # Entries of RobotRows.settings.
 MARGIN, PAD, HAS_MARGIN = range(3)
 # The "body" of a failed state whose q holds a NaN or Inf.
@@ -62,8 +65,8 @@ class RobotRows:
     B + the static row), in the cloud's order; ``keys`` (P, 3) each pair's (id_a, type_b,
     id_b); ``margins`` (P,) the distance within which each pair counts; ``motion_radii``
     (P, dof) (Robot.pair_motion_radii); ``boxes`` (centers, rotations, half extents): B rows
-    for the robot (written by a check), then the static rows; ``static_boxes`` (S, 23) and
-    ``settings`` (margin, pad, margin given) what the pass reads of the scene.
+    for the robot (written by a check), then the static rows; ``settings`` (margin, pad, margin
+    given) what the pass reads of the scene besides its rows, which each workspace holds.
     """
 
     def __init__(self, scene, bodies):
@@ -95,7 +98,6 @@ class RobotRows:
         table[:, LOW:RADIUS] = padded[3][:n_static].reshape(-1, 6)
         table[:, RADIUS] = padded[4][:n_static]
         table[:, OWN_MARGIN] = boxes.margins[:n_static] if scene.rows.own_margins else 0.0
-        self.static_boxes = table
         margin, pad = scene.pass_options(count)[:2]
         self.settings = np.array([0.0 if margin is None else margin, pad,
                                   0.0 if margin is None else 1.0])
@@ -103,34 +105,50 @@ class RobotRows:
         self.all_pairs = count * (count - 1) // 2 + count * n_static
         self.filtered = self.all_pairs - len(j)  # pairs the filters leave out
         self.one_state = (bodies.robot.dof,)  # the shape of one state's q
+        # The pass's rows and scratch, one per chunk of states (Workers.map_ranges): made
+        # once per scene version, their static rows filled, so that a call allocates none.
+        self._workspaces = [_workspace(bodies.robot.half_extents, table, pad,
+                                       len(bodies.robot.model.parents), len(j))]
 
-    def check(self, states, first_state, stop_state, frames=None):
+    def reserve(self, chunks):
+        """Make workspaces for ``chunks`` chunks of states checked at once (one per thread)."""
+        while len(self._workspaces) < chunks:
+            floats, ints = self._workspaces[0]
+            self._workspaces.append((floats.copy(), ints.copy()))
+
+    def check(self, states, first_state, stop_state, frames=None, chunk=0):
         """Return check_robot_states' answer for states ``[first_state, stop_state)``.
 
         ``frames`` (link rotations (K, L, 3, 3), translations (K, L, 3)): where to keep each
         state's link frames (a trajectory's segments start from them); None: not kept.
+        ``chunk``: the workspace to use (:meth:`reserve`), one per chunk checked at once.
         """
         model_ints, model_floats = self.bodies.packed_model
+        floats, ints = self._workspaces[chunk]
+        frame_rotations, frame_translations = NO_FRAMES if frames is None else frames
         return check_robot_states(states, model_ints, model_floats, self.bodies.base_pose,
-                                  self.pairs, self.keys, self.static_boxes, self.settings,
-                                  first_state, stop_state, NO_FRAMES if frames is None else frames)
+                                  self.pairs, self.keys, self.settings, floats, ints,
+                                  first_state, stop_state, frame_rotations, frame_translations)
 
 
 @kernel
-def check_robot_states(states, model_ints, model_floats, base_pose, pairs, keys, static_boxes,
-                       settings, first_state, stop_state, frames):
+def check_robot_states(states, model_ints, model_floats, base_pose, pairs, keys, settings,
+                       floats, ints, first_state, stop_state, frame_rotations,
+                       frame_translations):
     """Check joint states ``[first_state, stop_state)`` of ``states`` (K, dof) (module docstring).
 
-    Arguments as RobotRows holds them; the model as robot.pack_model packs it; each state's
-    link frames are written to ``frames`` (RobotRows.check) unless it holds none. Returns
+    Arguments as RobotRows holds them; the model as robot.pack_model packs it; ``floats`` and
+    ``ints`` a workspace of :func:`_workspace`; each state's link frames are written to
+    ``frame_rotations`` and ``frame_translations`` (RobotRows.check) unless they are empty. Returns
     (contacts with their state, (pairs the culls passed, SAT tests), first failed state
     or -1, its box (NON_FINITE_JOINT: its q), obb reason code, 1 if the SAT met NaN).
     """
     model = unpack_model(model_ints, model_floats)
     count = model.half_extents.shape[0]
     pad = settings[PAD]
-    centers, rotations, extents, aabbs, radii, margins = _rows(model.half_extents, static_boxes,
-                                                               pad)
+    (centers, rotations, extents, aabbs, radii, margins, link_rotations, link_translations,
+     depth, normal, point, oriented, candidates) = _views(floats, ints, count,
+                                                          model.parents.shape[0], len(pairs))
     # The rounding the culls allow: one bound per state on what obb.spheres_apart allows each
     # pair (64 ulps of the radii, extents and coordinates), so that a cull is a few flops.
     widest = 0.0  # the largest radius or static box's margin, half extents and radius
@@ -141,14 +159,9 @@ def check_robot_states(states, model_ints, model_floats, base_pose, pairs, keys,
         if row >= count:
             farthest_static = max(farthest_static, abs(centers[row, 0]) + abs(centers[row, 1])
                                   + abs(centers[row, 2]))
-    link_rotations, link_translations = link_frames(model)
-    oriented = np.full(count, -1)  # the state each box was last oriented for
+    oriented[:] = -1  # the state each box was last oriented for
     most = len(pairs)
-    candidates = np.empty((most, 3), np.int64)  # the SAT's pairs of rows, and each one's pair
     status = np.empty(most, np.int8)
-    depth = np.empty(most)
-    normal = np.empty((most, 3))
-    point = np.empty((most, 3))
     out = np.empty(max(most, 1), STATE_CONTACT_DTYPE)  # grown when full
     reported = passed = sat_tests = 0
     for state in range(first_state, stop_state):
@@ -156,8 +169,8 @@ def check_robot_states(states, model_ints, model_floats, base_pose, pairs, keys,
         for j in range(q.shape[0]):
             if not math.isfinite(q[j]):
                 return _failed(state, NON_FINITE_JOINT, NON_FINITE_POSE, 0)
-        if len(frames[0]):
-            link_rotations, link_translations = frames[0][state], frames[1][state]
+        if len(frame_rotations):
+            link_rotations, link_translations = frame_rotations[state], frame_translations[state]
         link_transforms(model, base_pose, q, link_rotations, link_translations)
         farthest = farthest_static
         for b in range(count):
@@ -228,17 +241,19 @@ def _failed(state, box, code, invalid):
 
 
 @kernel
-def _rows(half_extents, static_boxes, pad):
-    """Return the pass's box rows: B robot rows (placed per state), then the static rows.
+def _workspace(half_extents, static_boxes, pad, links, most):
+    """Return a workspace (floats, ints) of the pass, laid out as :func:`_views` reads it.
 
-    (centers, rotations, extents, aabbs, radii, margins), as sat.collide_pair_rows reads them:
-    the robot's radii padded as the one pass pads its bodies', their margins 0.
+    Its rows: B robot rows (placed per state), then the static rows as sat.collide_pair_rows
+    reads them, filled here; the robot's radii padded as the one pass pads its bodies', their
+    margins 0. Then scratch: the link frames, the SAT's outputs, its candidate pairs.
     """
     count, n_static = half_extents.shape[0], static_boxes.shape[0]
     rows = count + n_static
-    centers, rotations = np.empty((rows, 3)), np.empty((rows, 3, 3))
-    extents, aabbs = np.empty((rows, 3)), np.empty((rows, 2, 3))
-    radii, margins = np.empty(rows), np.zeros(rows)
+    floats = np.zeros(rows * ROW_FLOATS + links * 12 + most * 7)
+    ints = np.zeros(count + most * 3, np.int64)
+    centers, rotations, extents, aabbs, radii, margins = _views(floats, ints, count, links,
+                                                                most)[:6]
     for b in range(count):
         h = half_extents[b]
         extents[b] = h
@@ -254,7 +269,42 @@ def _rows(half_extents, static_boxes, pad):
                 rotations[row, m, n] = box[ROTATION + 3 * m + n]
         radii[row] = box[RADIUS]
         margins[row] = box[OWN_MARGIN]
-    return centers, rotations, extents, aabbs, radii, margins
+    return floats, ints
+
+
+@inlined_kernel
+def _views(floats, ints, count, links, most):
+    """Return the parts of a workspace (:func:`_workspace`), views of its two arrays.
+
+    (centers, rotations, extents, aabbs, radii, margins) of every row, the link frames
+    (rotations, translations), the SAT's (depth, normal, point) per candidate, then the state
+    each robot box was last oriented for and the candidates (their rows, their pair).
+    """
+    rows = (floats.shape[0] - links * 12 - most * 7) // ROW_FLOATS
+    at = 0
+    centers = floats[at:at + rows * 3].reshape((rows, 3))
+    at += rows * 3
+    rotations = floats[at:at + rows * 9].reshape((rows, 3, 3))
+    at += rows * 9
+    extents = floats[at:at + rows * 3].reshape((rows, 3))
+    at += rows * 3
+    aabbs = floats[at:at + rows * 6].reshape((rows, 2, 3))
+    at += rows * 6
+    radii, margins = floats[at:at + rows], floats[at + rows:at + 2 * rows]
+    at += 2 * rows
+    link_rotations = floats[at:at + links * 9].reshape((links, 3, 3))
+    at += links * 9
+    link_translations = floats[at:at + links * 3].reshape((links, 3))
+    at += links * 3
+    depth = floats[at:at + most]
+    at += most
+    normal = floats[at:at + most * 3].reshape((most, 3))
+    at += most * 3
+    point = floats[at:at + most * 3].reshape((most, 3))
+    oriented = ints[:count]
+    candidates = ints[count:count + most * 3].reshape((most, 3))
+    return (centers, rotations, extents, aabbs, radii, margins, link_rotations,
+            link_translations, depth, normal, point, oriented, candidates)
 
 
 @kernel

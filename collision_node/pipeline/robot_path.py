@@ -59,9 +59,11 @@ class RobotPath:
         if len(states) == 1:
             parts = [rows.check(states, 0, 1, frames)]
         else:
-            parts = self._scene.workers.map_ranges(
-                lambda _, first, stop: rows.check(states, first, stop, frames), len(states),
-                MIN_STATES_PER_CHUNK)
+            workers = self._scene.workers
+            rows.reserve(workers.max_chunks)
+            parts = workers.map_ranges(
+                lambda chunk, first, stop: rows.check(states, first, stop, frames, chunk),
+                len(states), MIN_STATES_PER_CHUNK)
         passed = sat_tests = 0
         for _, (part_passed, part_sat_tests), state, box, code, invalid in parts:
             if invalid:
