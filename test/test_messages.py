@@ -7,6 +7,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
+from collision_node.pipeline.contacts import STATE_CONTACT_DTYPE
 from collision_node.pipeline.world import CONTACT_DTYPE
 from collision_node.ros.messages import (CLOUD_DTYPE, cloud_to_contacts, CloudWriter,
                                          contacts_to_cloud, contacts_to_points,
@@ -120,6 +121,22 @@ def test_cloud_writer_reused_for_other_sizes_and_layouts():
         assert deserialize_message(ours, PointCloud2) == deserialize_message(reference,
                                                                              PointCloud2)
         assert ours[-len(contacts) * POINT_STEP - 1:-1] == naive_cloud_data(contacts)
+
+
+def test_a_writer_of_state_contacts_writes_the_collisions_cloud_without_their_state():
+    # The node answers joint_states with World.check_joints: contacts that carry their state.
+    writer = CloudWriter(STATE_CONTACT_DTYPE, CONTACT_DTYPE.names)
+    for count in (7, 0, 30):
+        contacts = random_contacts(np.random.default_rng(count), count)
+        with_state = np.zeros(count, STATE_CONTACT_DTYPE)
+        for name in CONTACT_DTYPE.names:
+            with_state[name] = contacts[name]
+        with_state['state'] = 3
+        ours = writer.serialize(with_state, 1234, 5678, 'world')
+        reference = serialize_message(contacts_to_cloud(contacts, stamped_header()))
+        assert deserialize_message(ours, PointCloud2) == deserialize_message(reference,
+                                                                             PointCloud2)
+        assert ours[-count * POINT_STEP - 1:-1] == naive_cloud_data(contacts)
 
 
 def test_contacts_to_points_keeps_the_order_of_the_cloud():

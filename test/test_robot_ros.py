@@ -14,6 +14,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseArray
 import numpy as np
 import pytest
+from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 from rclpy.serialization import deserialize_message
 from ros_helpers import COLLIDERS, Harness, room_overrides, room_poses, values
@@ -305,6 +306,29 @@ def test_pose_arrays_are_refused_while_a_robot_is_loaded(robot_room):
     requests.publish(PoseArray())
     rejection(robot_room, 'check_states: refused while a robot model is loaded')
     assert not robot_room.clouds
+
+
+def test_a_continuous_node_sweeps_the_robot_between_joint_states(robot_room, panda):
+    # Continuous on, each message is a step of the boxes, swept since the message before;
+    # off, the robot's pass checks the state alone (the tests above).
+    node, peer = robot_room.node, robot_room.robot
+    world = node_world(panda)
+    world.continuous = True
+    states = random_q(panda, np.random.default_rng(4), 8)
+    states[:, 0] = np.linspace(-2.8, 2.8, len(states))  # through the wall between messages
+    assert node.set_parameters([Parameter('continuous', value=True)])[0].successful
+    try:
+        swept = 0
+        for sec, q in enumerate(states, start=650):
+            expected = world.step(world.robot_poses(q)[0], panda.half_extents).contacts
+            peer.state(q, sec)
+            got = cloud_to_contacts(robot_room.answer(sec))
+            if sec > 650:  # the first one sweeps from the node's last step, if any
+                assert_points_equal(got, as_points(expected, CLOUD_DTYPE))
+                swept += len(got) > len(joints_answer(world, q))
+        assert swept  # some pair touched only between two messages: not vacuous
+    finally:
+        assert node.set_parameters([Parameter('continuous', value=False)])[0].successful
 
 
 def test_a_bad_model_parameter_stops_the_start_naming_it(context):

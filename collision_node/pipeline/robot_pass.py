@@ -44,6 +44,7 @@ from collision_node.pipeline.robot import (box_center, box_rotation, link_transf
                                            quaternion_from_rotation, unpack_model)
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
+from collision_node.pipeline.stats import one_pass_stats, Result
 
 # Columns of RobotRows.static_boxes: a static row's box as the scene rows hold it.
 CENTER, ROTATION, EXTENTS, LOW, HIGH, RADIUS, OWN_MARGIN = 0, 3, 12, 15, 18, 21, 22
@@ -109,6 +110,24 @@ class RobotRows:
         # once per scene version, their static rows filled, so that a call allocates none.
         self._workspaces = [_workspace(bodies.robot.half_extents, table, pad,
                                        len(bodies.robot.model.parents), len(j))]
+
+    def kernel_arguments(self):
+        """Return check_robot_states' arguments after the states, of the first workspace.
+
+        (model ints, model floats, base pose, pairs, keys, settings, workspace floats and
+        ints): for a kernel of the caller's that runs the pass on one state at a time.
+        """
+        model_ints, model_floats = self.bodies.packed_model
+        floats, ints = self._workspaces[0]
+        return (model_ints, model_floats, self.bodies.base_pose, self.pairs, self.keys,
+                self.settings, floats, ints)
+
+    def result(self, contacts, passed, sat_tests, ms, states):
+        """Return the Result of ``states`` states checked (``passed`` pairs, ``sat_tests``)."""
+        contacts.flags.writeable = False
+        return Result(contacts, one_pass_stats(
+            self.bodies.count, self.n_static,
+            (states * self.all_pairs, passed, states * self.filtered, sat_tests), ms, states))
 
     def reserve(self, chunks):
         """Make workspaces for ``chunks`` chunks of states checked at once (one per thread)."""

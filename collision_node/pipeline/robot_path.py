@@ -18,7 +18,7 @@ from collision_node.pipeline.one_pass import MIN_STATES_PER_CHUNK
 from collision_node.pipeline.robot_bodies import (DEFAULT_RESOLUTION, first_uncleared_pieces,
                                                   segment_contacts)
 from collision_node.pipeline.robot_pass import NON_FINITE_JOINT, RobotRows
-from collision_node.pipeline.stats import one_pass_stats, Result
+from collision_node.pipeline.stats import Result
 
 
 class RobotPath:
@@ -75,12 +75,15 @@ class RobotPath:
             passed += part_passed
             sat_tests += part_sat_tests
         contacts = parts[0][0] if len(parts) == 1 else np.concatenate([p[0] for p in parts])
-        contacts.flags.writeable = False
-        count = len(states)
-        return Result(contacts, one_pass_stats(
-            rows.bodies.count, rows.n_static,
-            (count * rows.all_pairs, passed, count * rows.filtered, sat_tests),
-            1e3 * (time.perf_counter() - start), count))
+        return rows.result(contacts, passed, sat_tests, 1e3 * (time.perf_counter() - start),
+                           len(states))
+
+    def robot_pass(self, one_pass_pairs):
+        """Return the RobotRows check_joints runs now, or None (no robot, or past one pass)."""
+        if self.bodies is None:
+            return None
+        rows = self._robot_rows(self.bodies)
+        return rows if rows.all_pairs <= one_pass_pairs else None
 
     def robot_poses(self, q):
         """Return the robot's box poses at joint values ``q``: (K, B, 7), the World's frame."""

@@ -125,7 +125,7 @@ def warm_up_like(world, half_extents, robot=None):
             twin.set_robot(robot)
             still = np.zeros(robot.dof)
             twin.check_joints(still)
-            twin.step(twin.robot_poses(still), robot.half_extents)  # joint_states
+            twin.step(twin.robot_poses(still), robot.half_extents)  # a continuous node's
             twin.check_trajectory(np.array([still, still + 0.1]))
     finally:
         twin.close()
@@ -351,7 +351,7 @@ def _robot():
         world.set_static(scene.static_poses, scene.static_half_extents)
         world.set_robot(arm)
         world.check_joints(np.zeros(arm.dof))
-        world.step(world.robot_poses(np.zeros(arm.dof)), arm.half_extents)  # joint_states
+        world.step(world.robot_poses(np.zeros(arm.dof)), arm.half_extents)  # its boxes
         world.check_trajectory(np.linspace(0.0, 0.1, 2 * arm.dof).reshape(2, arm.dof))
 
 

@@ -97,7 +97,7 @@ class JointStateView(NamedTuple):
 
     ``names_block`` is the CDR of the name sequence: handed back to :func:`parse_joint_state`
     as ``previous``, a message with the same names (a driver's every message) reuses
-    ``names`` without decoding a string.
+    ``names`` without decoding a string. ``names_end``: the body offset after it.
     """
 
     sec: int
@@ -106,6 +106,7 @@ class JointStateView(NamedTuple):
     names: tuple
     positions: np.ndarray
     names_block: bytes
+    names_end: int
 
 
 def parse_joint_state(buffer, previous=None):
@@ -126,6 +127,7 @@ def parse_joint_state(buffer, previous=None):
     else:
         names, at = _strings(body, names_at, count_format, 'name')
         block = bytes(body[names_at:at])
+    names_end = at
     positions, at = _doubles(data, at, count_format, value_type, 'position')
     for field in ('velocity', 'effort'):
         at = _doubles(data, at, count_format, value_type, field)[1]
@@ -134,7 +136,7 @@ def parse_joint_state(buffer, previous=None):
                        % (len(body) - at, MAX_JOINT_STATE_TRAILING_BYTES))
     if not (positions.dtype.isnative and positions.flags.aligned):
         positions = positions.astype(np.float64)  # a native, aligned, writeable copy
-    return JointStateView(sec, nanosec, frame_id, names, positions, block)
+    return JointStateView(sec, nanosec, frame_id, names, positions, block, names_end)
 
 
 def serialize_pose_array(sec, nanosec, frame_id, poses):

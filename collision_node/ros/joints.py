@@ -71,6 +71,20 @@ class JointValues:
         self._values[self._joints] = positions[self._entries]
         self._known[self._joints] = True
 
+    @property
+    def merged_names(self):
+        """Return the names of the last message merged (None before one)."""
+        return self._merged_names
+
+    def merge_arrays(self):
+        """Return (entries, joints, values, known) for a kernel that merges as :meth:`merge`.
+
+        A message of :attr:`merged_names` sets ``values[joints] = positions[entries]`` and
+        ``known[joints] = True``; ``values`` and ``known`` are this object's own (the node's
+        joint_states lane merges in place).
+        """
+        return self._entries, self._joints, self._values, self._known
+
     def q(self):
         """Return a copy of the values (dof,); JointInputError if a joint has none yet."""
         if not self._known.all():

@@ -20,9 +20,12 @@ from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
 from collision_node.ros.cdr import ENCAPSULATION_SIZE, point_cloud_parts, POINT_FIELD_DATATYPES
 
 
-def _cloud_dtype(contact_dtype):
-    """Return the points of contacts of ``contact_dtype``: the contacts' fields, then state."""
-    names = list(CONTACT_DTYPE.names) + [
+def _cloud_dtype(contact_dtype, names=None):
+    """Return the points of contacts of ``contact_dtype``: the contacts' fields, then state.
+
+    ``names``: the fields the points keep, of those (default: all of them).
+    """
+    names = names or list(CONTACT_DTYPE.names) + [
         name for name in contact_dtype.names if name not in CONTACT_DTYPE.names]
     # Floats narrow to float32 as doc/design.md fixes (a step of 0.06 mm at 1 km from the
     # origin), ids stay uint32.
@@ -97,11 +100,12 @@ class CloudWriter:
     kept buffer also spares the page faults of a fresh one.
     """
 
-    def __init__(self, contact_dtype=CONTACT_DTYPE):
+    def __init__(self, contact_dtype=CONTACT_DTYPE, fields=None):
+        """Write contacts of ``contact_dtype``, their ``fields`` (default: all) per point."""
         self._buffer = np.zeros(0, np.uint8)
         self._head = None  # (frame_id, the CDR bytes before the points, for width 0)
         self._contact_dtype = contact_dtype
-        self._cloud_dtype = _cloud_dtype(contact_dtype)
+        self._cloud_dtype = _cloud_dtype(contact_dtype, fields)
         # The kernel reads a contact row as 32-bit words: a float64 field starts at word
         # offset // 4 (as half of a float64 word offset // 8), a uint32 field at offset // 4.
         # Each cloud field is 4 bytes at word offset // 4 of its point.

@@ -79,7 +79,7 @@ from std_msgs.msg import Header, String
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
-from collision_node.pipeline.contacts import STATE_CONTACT_DTYPE
+from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
 from collision_node.pipeline.jit_progress import compile_progress
 from collision_node.pipeline.robot import Robot
 from collision_node.pipeline.static_scene import InvalidCollider
@@ -87,6 +87,7 @@ from collision_node.pipeline.warm_up import warm_up_in_background, warm_up_like
 from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import parse_joint_state, parse_pose_array
+from collision_node.ros.joint_lane import compile_lane, JointLane
 from collision_node.ros.joints import JointValues
 from collision_node.ros.lifetime import InitError, RosProgram
 from collision_node.ros.markers import MarkerWriter
@@ -202,6 +203,7 @@ class CollisionNode(LifecycleNode):
         self._model_texts = dict.fromkeys(MODEL_TOPICS, '')
         self._joints = None
         self._joint_state = None  # the last joint_states message taken (its names are reused)
+        self._joint_lane = JointLane()  # its layout, for the next messages of it
         self.finalized = Future()  # done once the shutdown transition has run
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
@@ -275,6 +277,7 @@ class CollisionNode(LifecycleNode):
         world.set_filters(*config.filters())
         self._scene_version = 0
         self._robot, self._joints, self._joint_state = None, None, None
+        self._joint_lane = JointLane()
         self._model_texts = {topic: getattr(config, topic) for topic in MODEL_TOPICS}
         if config.robot_description:  # a model from the parameters: built now, or no start
             try:
@@ -289,9 +292,12 @@ class CollisionNode(LifecycleNode):
             warm_up_like(world, config.dynamic_half_extents,
                          robot if config.robot_description else None)
             compile_writer()
+            compile_lane()
         self._background_warm_up = warm_up_in_background(progress.compiled > 0,
                                                          self.get_logger().info)
         self._cloud_writer = CloudWriter()
+        # The robot's answers carry their state (World.check_joints); collisions does not.
+        self._joints_writer = CloudWriter(STATE_CONTACT_DTYPE, CONTACT_DTYPE.names)
         self.get_logger().info('JIT warm-up of the configured World took %.2f s'
                                % (time.perf_counter() - start))
 
@@ -402,12 +408,14 @@ class CollisionNode(LifecycleNode):
             self._subscription = self._tick_timer = None
             self._collisions_publisher = self._markers_publisher = None
             self._states_publisher = self._trajectory_publisher = None
-            self._cloud_writer = self._states_writer = self._marker_writer = None
+            self._cloud_writer = self._joints_writer = self._states_writer = None
+            self._marker_writer = None
             self._background_warm_up = None
             self._pending, self._last_sequence, self._next_markers_s = None, None, -math.inf
             with self._world_lock:
                 world, self._world, self._config = self._world, None, None
                 self._robot, self._joints, self._joint_state = None, None, None
+                self._joint_lane = JointLane()
             if world is not None:
                 world.close()
 
@@ -530,15 +538,20 @@ class CollisionNode(LifecycleNode):
         self._publish_tick(start, checked, result, message.sec, message.nanosec, message.poses,
                            config.dynamic_half_extents)
 
-    def _publish_tick(self, start, checked, result, sec, nanosec, poses, half_extents):
-        """Publish a step's answer and markers, and record the tick (perf_counter times)."""
+    def _publish_tick(self, start, checked, result, sec, nanosec, poses, half_extents,
+                      writer=None):
+        """Publish a check's answer and markers, and record the tick (perf_counter times).
+
+        ``writer``: the CloudWriter of the result's contacts (default: a step's); ``poses``
+        None: no markers this time.
+        """
         stepped = time.perf_counter()
-        cloud = self._cloud_writer.serialize(result.contacts, sec, nanosec,
-                                             self._config.frame_id)
+        cloud = (writer or self._cloud_writer).serialize(result.contacts, sec, nanosec,
+                                                         self._config.frame_id)
         output_ms = 1e3 * (time.perf_counter() - stepped)
         self._collisions_publisher.publish(cloud)
         now = time.monotonic()
-        if now >= self._next_markers_s:
+        if poses is not None and now >= self._next_markers_s:
             output_ms += 1e3 * self._publish_markers(sec, nanosec, poses, half_extents,
                                                      result, now)
         done = time.perf_counter()
@@ -659,6 +672,8 @@ class CollisionNode(LifecycleNode):
     def _on_joint_states(self, buffer):
         """Take a joint_states message's values; once every joint has one, answer on collisions."""
         start = time.perf_counter()
+        if self._answer_in_lane(buffer, start):
+            return
         message = self._merge_joint_states(buffer)
         if message is None:
             return
@@ -669,8 +684,17 @@ class CollisionNode(LifecycleNode):
                 missing = joints.missing
                 if not missing:
                     checked = time.perf_counter()
-                    poses = self._world.robot_poses(joints.q())[0]
-                    result = self._world.step(poses, robot.half_extents)
+                    q = joints.q()
+                    if self._world.continuous:  # swept since the last input: a step of boxes
+                        poses = self._world.robot_poses(q)[0]
+                        result = self._world.step(poses, robot.half_extents)
+                        writer = self._cloud_writer
+                    else:  # the robot's pass: the same answer, forward kinematics inside
+                        result = self._world.check_joints(q)
+                        writer = self._joints_writer
+                        # The boxes' poses only for the markers, when they are due.
+                        poses = self._world.robot_poses(q)[0] \
+                            if time.monotonic() >= self._next_markers_s else None
         except REFUSALS as error:  # ValueError: the World's filters sized for other bodies
             self._reject('joint_states', error)
             return
@@ -680,7 +704,28 @@ class CollisionNode(LifecycleNode):
                                    % ', '.join(missing), throttle_duration_sec=LOG_THROTTLE_S)
             return
         self._publish_tick(start, checked, result, message.sec, message.nanosec, poses,
-                           robot.half_extents)
+                           robot.half_extents, writer)
+
+    def _answer_in_lane(self, buffer, start):
+        """Answer a message in the joint_states lane (joint_lane.py); False: the full way."""
+        with self._world_lock:
+            world = self._world
+            rows = None if world.continuous else world.robot_pass()
+            answer = self._joint_lane.answer(buffer, self._joints, rows)
+            if answer is None:
+                return False
+            contacts, passed, sat_tests, sec, nanosec = answer
+            result = rows.result(contacts, passed, sat_tests,
+                                 1e3 * (time.perf_counter() - start), 1)
+            half_extents = self._robot.half_extents
+            # The boxes' poses only for the markers, when they are due.
+            poses = world.robot_poses(self._joints.q())[0] \
+                if time.monotonic() >= self._next_markers_s else None
+        self._monitor.received()
+        self._monitor.missing_joints(())
+        self._publish_tick(start, start, result, sec, nanosec, poses, half_extents,
+                           self._joints_writer)
+        return True
 
     def _keep_joint_states(self, buffer):
         """While not active: keep the joint values (answer nothing); count an ignored input."""
@@ -702,6 +747,7 @@ class CollisionNode(LifecycleNode):
             self._reject('joint_states', error)
             return None
         self._joint_state = message
+        self._joint_lane.learn(buffer, message, self._joints)
         return message
 
     def _on_check_trajectory(self, message):

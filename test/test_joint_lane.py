@@ -1,0 +1,184 @@
+"""The joint_states lane against the full way, message by message (ros/joint_lane.py).
+
+The full way: cdr.parse_joint_state, JointValues.merge, then World.check_joints on q. The
+lane, once it has learned a message's layout, must give the same contacts and stamp and leave
+the same joint values, or leave the message to the full way (None) without changing them.
+Messages are written field by field with struct, in either byte order, so that the cases the
+lane must not answer (big-endian, bad lengths, trailing bytes) are built as they would come.
+"""
+import struct
+
+import numpy as np
+import pytest
+
+from collision_node.benchmarks.robot_model import panda_world
+from collision_node.ros.cdr import CdrError, parse_joint_state
+from collision_node.ros.joint_lane import JointLane
+from collision_node.ros.joints import JointInputError, JointValues
+
+
+def joint_state_cdr(names, positions, velocities=(), efforts=(), sec=5, nanosec=6,
+                    frame_id='base', order='<', trailing=b''):
+    """Write a sensor_msgs/JointState as CDR, field by field, in byte order ``order``."""
+    out = bytearray(b'\x00\x01\x00\x00' if order == '<' else b'\x00\x00\x00\x00')
+
+    def put(fmt, *values):  # aligned to the item's size, counted after the 4-byte header
+        out.extend(bytes(-(len(out) - 4) % struct.calcsize(fmt)))
+        out.extend(struct.pack(order + fmt, *values))
+
+    def text(value):
+        put('I', len(value.encode()) + 1)
+        out.extend(value.encode() + b'\x00')
+    put('i', sec)
+    put('I', nanosec)
+    text(frame_id)
+    put('I', len(names))
+    for name in names:
+        text(name)
+    for values in (positions, velocities, efforts):
+        put('I', len(values))
+        for value in values:
+            put('d', value)
+    return bytes(out) + trailing
+
+
+class FullWay:
+    """The node's path for a message without the lane; its joint values."""
+
+    def __init__(self, robot):
+        self.joints = JointValues(robot.joint_names)
+        self.previous = None
+
+    def answer(self, world, buffer):
+        """Return (contacts, sec, nanosec), None while a joint has no value; raise refusals."""
+        view = parse_joint_state(buffer, self.previous)
+        self.joints.merge(view.names, view.positions)
+        self.previous = view
+        if self.joints.missing:
+            return None
+        return world.check_joints(self.joints.q()).contacts, view.sec, view.nanosec
+
+
+@pytest.fixture(scope='module')
+def scene(panda):
+    return panda_world(panda), panda
+
+
+def driver_names(robot):
+    """Return a driver's names: every joint, in another order, and a name of no joint."""
+    names = list(robot.joint_names[::-1])
+    names.insert(3, 'conveyor_joint')
+    return names
+
+
+def positions_of(names, robot, q):
+    """Return the positions a message of ``names`` carries for q (0.5 for unknown names)."""
+    index = {name: i for i, name in enumerate(robot.joint_names)}
+    return [float(q[index[name]]) if name in index else 0.5 for name in names]
+
+
+def learned_lane(world, robot, names, frame_id='base'):
+    """Return (lane, its JointValues, the full way) after one message went the full way."""
+    lane, full, reference = JointLane(), FullWay(robot), FullWay(robot)
+    q = np.zeros(robot.dof)
+    buffer = joint_state_cdr(names, positions_of(names, robot, q), frame_id=frame_id)
+    full.answer(world, buffer)
+    reference.answer(world, buffer)
+    lane.learn(buffer, full.previous, full.joints)
+    return lane, full, reference
+
+
+def test_a_drivers_stream_is_answered_as_the_full_way(scene):
+    world, robot = scene
+    names = driver_names(robot)
+    lane, joints, reference = learned_lane(world, robot, names)
+    limits = robot.joint_limits
+    rng = np.random.default_rng(0)
+    reported = 0
+    for k, q in enumerate(rng.uniform(limits[:, 0], limits[:, 1], (300, robot.dof))):
+        sec, nanosec = int(rng.integers(-2**31, 2**31)), int(rng.integers(0, 2**32))
+        buffer = joint_state_cdr(names, positions_of(names, robot, q), velocities=[0.1] * (k % 3),
+                                 efforts=[0.2] * len(names) * (k % 2), sec=sec, nanosec=nanosec)
+        contacts, passed, sat_tests, lane_sec, lane_nanosec = lane.answer(
+            buffer, joints.joints, world.robot_pass())
+        expected, expected_sec, expected_nanosec = reference.answer(world, buffer)
+        assert np.array_equal(contacts, expected)
+        assert (lane_sec, lane_nanosec) == (expected_sec, expected_nanosec) == (sec, nanosec)
+        assert np.array_equal(joints.joints.q(), reference.joints.q())
+        assert sat_tests <= passed
+        reported += len(contacts)
+    assert reported > 100  # colliding states among them: not vacuous
+
+
+def refused(full, world, buffer):
+    """Return why the full way refuses ``buffer`` (None: it answers it)."""
+    try:
+        full.answer(world, buffer)
+    except (CdrError, JointInputError) as error:
+        return str(error)
+    return None
+
+
+def test_messages_it_cannot_answer_go_the_full_way_unchanged(scene):
+    world, robot = scene
+    names = driver_names(robot)
+    q = np.full(robot.dof, 0.1)
+    good = positions_of(names, robot, q)
+    nan = list(good)
+    nan[2] = float('nan')
+    others = {
+        'other names': joint_state_cdr(names[::-1], good[::-1]),
+        'other frame': joint_state_cdr(names, good, frame_id='odom'),
+        'big-endian': joint_state_cdr(names, good, order='>'),
+        'NaN position': joint_state_cdr(names, nan),
+        'fewer positions': joint_state_cdr(names, good[:-1]),
+        'no positions': joint_state_cdr(names, [], velocities=good),
+        'trailing bytes': joint_state_cdr(names, good, trailing=bytes(24)),
+        'truncated': joint_state_cdr(names, good, efforts=good)[:-5],
+    }
+    expected_refusals = {'NaN position', 'fewer positions', 'trailing bytes', 'truncated'}
+    for case, buffer in others.items():
+        lane, full, reference = learned_lane(world, robot, names)
+        before = full.joints.q()
+        assert lane.answer(buffer, full.joints, world.robot_pass()) is None, case
+        assert np.array_equal(full.joints.q(), before), case
+        assert (refused(reference, world, buffer) is not None) == (case in expected_refusals)
+        # The next message of the learned layout is the lane's again.
+        answer = lane.answer(joint_state_cdr(names, good), full.joints, world.robot_pass())
+        assert answer is not None and np.array_equal(
+            answer[0], world.check_joints(full.joints.q()).contacts), case
+
+
+def test_a_joint_without_a_value_leaves_the_answer_to_the_full_way(scene):
+    world, robot = scene
+    arm = [name for name in robot.joint_names if 'finger' not in name]
+    lane, full, _ = learned_lane(world, robot, arm)
+    assert full.joints.missing
+    buffer = joint_state_cdr(arm, [0.2] * len(arm))
+    assert lane.answer(buffer, full.joints, world.robot_pass()) is None
+    assert full.answer(world, buffer) is None  # the full way waits (and warns) too
+    # A gripper's message (another layout) completes q the full way; the arm's next one goes
+    # the full way too (the values last merged the gripper's names), and is learned.
+    gripper = [name for name in robot.joint_names if 'finger' in name]
+    gripper_message = joint_state_cdr(gripper, [0.01] * len(gripper))
+    assert lane.answer(gripper_message, full.joints, world.robot_pass()) is None
+    full.answer(world, gripper_message)
+    arm_message = joint_state_cdr(arm, [0.3] * len(arm))
+    assert lane.answer(arm_message, full.joints, world.robot_pass()) is None
+    full.answer(world, arm_message)
+    lane.learn(arm_message, full.previous, full.joints)
+    answer = lane.answer(joint_state_cdr(arm, [0.4] * len(arm)), full.joints,
+                         world.robot_pass())
+    assert answer is not None
+    assert np.array_equal(answer[0], world.check_joints(full.joints.q()).contacts)
+
+
+def test_no_robot_pass_or_another_joint_values_mean_the_full_way(scene):
+    world, robot = scene
+    names = driver_names(robot)
+    lane, full, _ = learned_lane(world, robot, names)
+    buffer = joint_state_cdr(names, positions_of(names, robot, np.zeros(robot.dof)))
+    assert lane.answer(buffer, full.joints, None) is None  # continuous, or past one pass
+    assert lane.answer(buffer, JointValues(robot.joint_names, full.joints),
+                       world.robot_pass()) is None  # a new model: its values unmerged
+    assert lane.answer(buffer, None, world.robot_pass()) is None
