@@ -57,12 +57,14 @@ class PoseArrayView(NamedTuple):
     writeable copy. rclpy's ``raw=True`` messages are ``bytes`` whose data start 8-byte
     aligned, which puts the pose block at 4 modulo 8 (after the encapsulation header): they
     get the copy, so exactly one copy of the poses is made on the way to the kernels.
+    ``count_end``: the body offset after the pose count.
     """
 
     sec: int
     nanosec: int
     frame_id: str
     poses: np.ndarray
+    count_end: int
 
 
 def parse_pose_array(buffer):
@@ -75,6 +77,7 @@ def parse_pose_array(buffer):
     _, count_format, value_type = layout
     size = len(body)
     count, poses_at = _count(body, at, count_format, 'pose')
+    count_end = poses_at
     if count:
         poses_at = _aligned(poses_at, 8)
     end = poses_at + count * POSE_SIZE
@@ -89,7 +92,7 @@ def parse_pose_array(buffer):
                           offset=ENCAPSULATION_SIZE + poses_at).reshape(count, POSE_FIELDS)
     if not (poses.dtype.isnative and poses.flags.aligned):
         poses = poses.astype(np.float64)  # a native, aligned, writeable copy
-    return PoseArrayView(sec, nanosec, frame_id, poses)
+    return PoseArrayView(sec, nanosec, frame_id, poses, count_end)
 
 
 class JointStateView(NamedTuple):

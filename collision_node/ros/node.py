@@ -87,8 +87,8 @@ from collision_node.pipeline.warm_up import warm_up_in_background, warm_up_like
 from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import parse_joint_state, parse_pose_array
-from collision_node.ros.joint_lane import compile_lane, JointLane
 from collision_node.ros.joints import JointValues
+from collision_node.ros.lanes import compile_lanes, JointLane, PoseLane
 from collision_node.ros.lifetime import InitError, RosProgram
 from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.memory import keep_heap_memory
@@ -188,6 +188,7 @@ class CollisionNode(LifecycleNode):
         self._states_publisher: Optional[LifecyclePublisher] = None
         self._trajectory_publisher: Optional[LifecyclePublisher] = None
         self._cloud_writer: Optional[CloudWriter] = None   # collisions
+        self._joints_writer: Optional[CloudWriter] = None  # collisions of check_joints
         self._states_writer: Optional[CloudWriter] = None  # state and trajectory collisions
         self._marker_writer: Optional[MarkerWriter] = None
         # The thread readying every kernel this configuration did not (pipeline.warm_up).
@@ -204,6 +205,7 @@ class CollisionNode(LifecycleNode):
         self._joints = None
         self._joint_state = None  # the last joint_states message taken (its names are reused)
         self._joint_lane = JointLane()  # its layout, for the next messages of it
+        self._pose_lane = PoseLane()  # the layout of the last dynamic_poses read
         self.finalized = Future()  # done once the shutdown transition has run
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
@@ -292,7 +294,7 @@ class CollisionNode(LifecycleNode):
             warm_up_like(world, config.dynamic_half_extents,
                          robot if config.robot_description else None)
             compile_writer()
-            compile_lane()
+            compile_lanes()
         self._background_warm_up = warm_up_in_background(progress.compiled > 0,
                                                          self.get_logger().info)
         self._cloud_writer = CloudWriter()
@@ -528,7 +530,10 @@ class CollisionNode(LifecycleNode):
             if self._robot is not None:
                 raise InputError('refused while a robot model is loaded: its boxes are the '
                                  'dynamic bodies (publish joint_states)')
-            message = _read_poses(buffer, config, _dynamic_count_problem)
+            message = self._pose_lane.read(buffer, config)
+            if message is None:  # not of the last layout read: the full way (lanes.py)
+                message = _read_poses(buffer, config, _dynamic_count_problem)
+                self._pose_lane.learn(buffer, message, config)
             checked = time.perf_counter()
             with self._world_lock:
                 result = self._world.step(message.poses, config.dynamic_half_extents)
@@ -707,7 +712,7 @@ class CollisionNode(LifecycleNode):
                            robot.half_extents, writer)
 
     def _answer_in_lane(self, buffer, start):
-        """Answer a message in the joint_states lane (joint_lane.py); False: the full way."""
+        """Answer a message in the joint_states lane (lanes.py); False: the full way."""
         with self._world_lock:
             world = self._world
             rows = None if world.continuous else world.robot_pass()

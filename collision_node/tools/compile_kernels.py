@@ -5,7 +5,7 @@
 .ci/setup-venv runs it once the package is installed, so that the first start of the node
 (and of collision_demo) loads the kernels in about a second instead of compiling them. It
 compiles the warm-up's sections (collision_node.pipeline.warm_up.SECTIONS) in one process a
-CPU, the clouds' kernel and the joint_states lane's, into the cache the node will read (the
+CPU, the clouds' kernel and the lanes' (ros/lanes.py), into the cache the node will read (the
 same NUMBA_CACHE_DIR, if one is set); a kernel already in the cache is loaded, not compiled.
 No ROS is started.
 """
@@ -16,7 +16,7 @@ import time
 
 from collision_node.pipeline.jit_progress import compile_progress
 from collision_node.pipeline.warm_up import compile_in_processes, SECTIONS
-from collision_node.ros.joint_lane import compile_lane
+from collision_node.ros.lanes import compile_lanes
 from collision_node.ros.messages import compile_writer
 
 
@@ -34,7 +34,7 @@ def main(args=None):
     kernels = progress.compiled + compile_in_processes(
         processes=processes, report=lambda line: print(line, flush=True))
     with compile_progress(lambda line: None) as progress:
-        compile_lane()  # after the robot's pass, which it calls, is in the cache
+        compile_lanes()  # after the robot's pass, which one calls, is in the cache
     kernels += progress.compiled
     print('compiled %d kernels in %.0f s' % (kernels, time.monotonic() - start), flush=True)
 

@@ -1,10 +1,11 @@
-"""The joint_states lane against the full way, message by message (ros/joint_lane.py).
+"""The lanes against the full way, message by message (ros/lanes.py).
 
-The full way: cdr.parse_joint_state, JointValues.merge, then World.check_joints on q. The
-lane, once it has learned a message's layout, must give the same contacts and stamp and leave
-the same joint values, or leave the message to the full way (None) without changing them.
-Messages are written field by field with struct, in either byte order, so that the cases the
-lane must not answer (big-endian, bad lengths, trailing bytes) are built as they would come.
+The joint_states full way: cdr.parse_joint_state, JointValues.merge, then World.check_joints
+on q; the PoseArray one: cdr.parse_pose_array. A lane, once it has learned a message's
+layout, must give the same contacts (poses) and stamp and leave the same joint values, or
+leave the message to the full way (None) without changing them. Messages are written field
+by field with struct, in either byte order, so that the cases a lane must not answer
+(big-endian, bad lengths, trailing bytes) are built as they would come.
 """
 import struct
 
@@ -12,34 +13,55 @@ import numpy as np
 import pytest
 
 from collision_node.benchmarks.robot_model import panda_world
-from collision_node.ros.cdr import CdrError, parse_joint_state
-from collision_node.ros.joint_lane import JointLane
+from collision_node.ros.cdr import CdrError, parse_joint_state, parse_pose_array
 from collision_node.ros.joints import JointInputError, JointValues
+from collision_node.ros.lanes import JointLane, PoseLane
+
+
+class Cdr:
+    """A CDR message written field by field with struct, in byte order ``order``."""
+
+    def __init__(self, order, sec, nanosec, frame_id):
+        self.order = order
+        self.out = bytearray(b'\x00\x01\x00\x00' if order == '<' else b'\x00\x00\x00\x00')
+        self.put('i', sec)
+        self.put('I', nanosec)
+        self.text(frame_id)
+
+    def put(self, fmt, *values):
+        """Append values, aligned to the item's size counted after the 4-byte header."""
+        self.out.extend(bytes(-(len(self.out) - 4) % struct.calcsize(fmt)))
+        self.out.extend(struct.pack(self.order + fmt, *values))
+
+    def text(self, value):
+        self.put('I', len(value.encode()) + 1)
+        self.out.extend(value.encode() + b'\x00')
+
+    def doubles(self, values):
+        self.put('I', len(values))
+        for value in values:
+            self.put('d', value)
 
 
 def joint_state_cdr(names, positions, velocities=(), efforts=(), sec=5, nanosec=6,
                     frame_id='base', order='<', trailing=b''):
-    """Write a sensor_msgs/JointState as CDR, field by field, in byte order ``order``."""
-    out = bytearray(b'\x00\x01\x00\x00' if order == '<' else b'\x00\x00\x00\x00')
-
-    def put(fmt, *values):  # aligned to the item's size, counted after the 4-byte header
-        out.extend(bytes(-(len(out) - 4) % struct.calcsize(fmt)))
-        out.extend(struct.pack(order + fmt, *values))
-
-    def text(value):
-        put('I', len(value.encode()) + 1)
-        out.extend(value.encode() + b'\x00')
-    put('i', sec)
-    put('I', nanosec)
-    text(frame_id)
-    put('I', len(names))
+    """Write a sensor_msgs/JointState as CDR."""
+    cdr = Cdr(order, sec, nanosec, frame_id)
+    cdr.put('I', len(names))
     for name in names:
-        text(name)
+        cdr.text(name)
     for values in (positions, velocities, efforts):
-        put('I', len(values))
-        for value in values:
-            put('d', value)
-    return bytes(out) + trailing
+        cdr.doubles(values)
+    return bytes(cdr.out) + trailing
+
+
+def pose_array_cdr(poses, sec=5, nanosec=6, frame_id='world', order='<', trailing=b''):
+    """Write a geometry_msgs/PoseArray as CDR."""
+    cdr = Cdr(order, sec, nanosec, frame_id)
+    cdr.put('I', len(poses))
+    for value in np.ravel(poses):
+        cdr.put('d', value)
+    return bytes(cdr.out) + trailing
 
 
 class FullWay:
@@ -182,3 +204,53 @@ def test_no_robot_pass_or_another_joint_values_mean_the_full_way(scene):
     assert lane.answer(buffer, JointValues(robot.joint_names, full.joints),
                        world.robot_pass()) is None  # a new model: its values unmerged
     assert lane.answer(buffer, None, world.robot_pass()) is None
+
+
+def random_poses(rng, count):
+    poses = np.concatenate([rng.normal(size=(count, 3)), rng.normal(size=(count, 4))], axis=1)
+    poses[:, 3:] /= np.linalg.norm(poses[:, 3:], axis=1, keepdims=True)
+    return poses
+
+
+@pytest.mark.parametrize('frame_id', ['', 'world', 'map_12'])
+def test_a_trackers_pose_arrays_read_as_the_full_way(frame_id):
+    rng = np.random.default_rng(len(frame_id))
+    config = object()  # the node's configuration: the lane answers under the one it learned
+    for count in (7, 1, 0):
+        lane = PoseLane()
+        first = pose_array_cdr(random_poses(rng, count), frame_id=frame_id)
+        assert lane.read(first, config) is None  # nothing learned yet
+        lane.learn(first, parse_pose_array(first), config)
+        for _ in range(20):
+            sec, nanosec = int(rng.integers(-2**31, 2**31)), int(rng.integers(0, 2**32))
+            buffer = pose_array_cdr(random_poses(rng, count), sec, nanosec, frame_id,
+                                    trailing=bytes(int(rng.integers(0, 8))))
+            read, expected = lane.read(buffer, config), parse_pose_array(buffer)
+            assert (read.sec, read.nanosec, read.frame_id) == (sec, nanosec, frame_id)
+            assert read.poses.tobytes() == expected.poses.tobytes()
+            assert read.poses.shape == (count, 7) and read.poses.flags.writeable \
+                and read.poses.flags.c_contiguous and read.poses.dtype == np.float64
+
+
+def test_pose_arrays_of_another_layout_go_the_full_way():
+    rng = np.random.default_rng(9)
+    config = object()
+    poses = random_poses(rng, 7)
+    lane = PoseLane()
+    learned = pose_array_cdr(poses)
+    lane.learn(learned, parse_pose_array(learned), config)
+    others = {
+        'other frame': pose_array_cdr(poses, frame_id='map'),
+        'more poses': pose_array_cdr(random_poses(rng, 8)),
+        'fewer poses': pose_array_cdr(poses[:6]),
+        'big-endian': pose_array_cdr(poses, order='>'),
+        'trailing bytes': pose_array_cdr(poses, trailing=bytes(8)),
+        'truncated': pose_array_cdr(poses)[:-3],
+    }
+    for case, buffer in others.items():
+        assert lane.read(buffer, config) is None, case
+    assert lane.read(learned, object()) is None  # another configuration: its own rules
+    assert lane.read(learned, config) is not None
+    big = pose_array_cdr(poses, order='>')
+    lane.learn(big, parse_pose_array(big), config)  # big-endian: read the full way only
+    assert lane.read(big, config) is None and lane.read(learned, config) is None

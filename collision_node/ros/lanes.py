@@ -1,0 +1,244 @@
+"""Lanes: a publisher's next message of a known layout read (and checked) in one kernel.
+
+A publisher sends the same header at a steady rate: a driver's joint_states name the same
+joints in the same frame, a tracker's PoseArray holds as many poses in the same frame. The
+full way for a message is stages of Python (cdr.py's parsers, the node's checks, then the
+World), and from a cold cache, as each input at 200 Hz meets it, they were most of the node's
+latency over an echo node (Intel Xeon VM of the README: 0.19 ms of 0.23 ms for joint_states).
+Once a message has gone the full way, a lane learns its layout: the body's bytes from the
+frame_id's length to the end of the names (joint_states) or of the pose count (PoseArray).
+A next message whose bytes there are the same is read in one kernel:
+
+* :class:`PoseLane` reads the poses into an aligned array: the node steps the World on them
+  as on the full way's (which validates every pose, so the lane reads only the layout);
+* :class:`JointLane` reads the positions, merges them into the joint values and runs the
+  robot's pass (robot_pass.check_robot_states, the pass World.check_joints runs).
+
+A lane never refuses: a message it cannot answer exactly as the full way would (another
+layout, big-endian CDR, lengths or values the full way refuses, a joint still without a
+value, a state the pass refuses, a continuous World, a scene past one pass) goes the full
+way, which answers it or says why. ``test/test_lanes.py`` holds each lane to the full way
+message by message.
+"""
+import math
+
+import numpy as np
+
+from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.contacts import STATE_CONTACT_DTYPE
+from collision_node.pipeline.robot import Robot
+from collision_node.pipeline.robot_pass import check_robot_states
+from collision_node.pipeline.warm_up import WARM_UP_ROBOT
+from collision_node.pipeline.world import World
+from collision_node.ros.cdr import (CDR_LE, ENCAPSULATION_SIZE, MAX_JOINT_STATE_TRAILING_BYTES,
+                                    MAX_TRAILING_BYTES, POSE_FIELDS, PoseArrayView)
+
+# Body offset of the frame_id's length: the layout a lane compares starts there.
+FRAME_ID_AT = 8
+LITTLE_ENDIAN = tuple(np.frombuffer(CDR_LE, np.uint8).tolist())
+NO_LAYOUT = np.zeros(0, np.uint8)
+
+
+class _Layout:
+    """The layout bytes of the last message that went the full way, for one owner."""
+
+    def __init__(self):
+        self.bytes = None  # the body bytes from the frame_id's length to the layout's end
+        self.owner = None  # what the messages were checked against (config, joint values)
+
+    def learn(self, buffer, end, owner):
+        """Take body bytes [FRAME_ID_AT, end) of ``buffer`` (little-endian CDR) as the layout."""
+        if bytes(buffer[:2]) != CDR_LE:
+            self.bytes = self.owner = None
+            return
+        self.bytes = np.frombuffer(buffer, np.uint8, end - FRAME_ID_AT,
+                                   ENCAPSULATION_SIZE + FRAME_ID_AT).copy()
+        self.owner = owner
+
+
+class PoseLane:
+    """Reads the PoseArrays of a known layout (module docstring)."""
+
+    def __init__(self):
+        self._layout = _Layout()
+        self._message = None  # the last message read the full way
+
+    def learn(self, buffer, message, config):
+        """Take the layout of ``buffer``, read the full way (``message``) and let by ``config``.
+
+        ``config``: the node's configuration, whose rules the message passed (its frame, its
+        pose count); a lane answers only under the same one.
+        """
+        self._layout.learn(buffer, message.count_end, config)
+        self._message = message
+
+    def read(self, buffer, config):
+        """Return ``buffer``'s cdr.PoseArrayView, or None: the full way."""
+        layout = self._layout
+        if layout.owner is not config:  # its rules may differ (max_bodies, sizes)
+            return None
+        learned = self._message
+        read, poses, sec, nanosec = _read_poses(np.frombuffer(buffer, np.uint8), layout.bytes,
+                                                len(learned.poses))
+        return PoseArrayView(sec, nanosec, learned.frame_id, poses, learned.count_end) \
+            if read else None
+
+
+class JointLane:
+    """Answers the joint_states of a known layout (module docstring)."""
+
+    def __init__(self):
+        self._layout = _Layout()
+        self._name_count = 0
+
+    def learn(self, buffer, message, joints):
+        """Take the layout of ``buffer``, merged the full way into ``joints`` (JointValues).
+
+        ``message``: its cdr.JointStateView. One whose names the values did not take (no
+        positions) leaves the lane without a layout.
+        """
+        if joints.merged_names != message.names:
+            self._layout = _Layout()
+            return
+        # The values' own names object: answer() asks whether they merged another since.
+        self._layout.learn(buffer, message.names_end, joints.merged_names)
+        self._name_count = len(message.names)
+
+    def answer(self, buffer, joints, rows):
+        """Return (contacts, pairs passed, SAT tests, sec, nanosec), or None: the full way.
+
+        ``joints``: the JointValues the layout was learned with; ``rows``: the World's
+        robot_pass() (None: the full way).
+        """
+        layout = self._layout
+        if rows is None or joints is None or layout.owner is None \
+                or joints.merged_names is not layout.owner:
+            return None
+        answered, contacts, passed, sat_tests, sec, nanosec = _answer_joints(
+            np.frombuffer(buffer, np.uint8), layout.bytes, self._name_count,
+            *joints.merge_arrays(), *rows.kernel_arguments())
+        return (contacts, passed, sat_tests, sec, nanosec) if answered else None
+
+
+def compile_lanes():
+    """Compile the lanes' kernels, or load them from numba's cache (a node's start)."""
+    world = World()
+    robot = Robot.from_urdf(WARM_UP_ROBOT)
+    world.set_robot(robot)
+    message = np.frombuffer(bytes(16), np.uint8)  # read-only, as a message's bytes are
+    no_joints = np.zeros(0, np.int64)
+    _answer_joints(message, NO_LAYOUT, 1, no_joints, no_joints, np.zeros(robot.dof),
+                   np.zeros(robot.dof, np.bool_), *world.robot_pass().kernel_arguments())
+    _read_poses(message, NO_LAYOUT, 1)
+
+
+@kernel
+def _read_poses(message, layout, count):
+    """Return (read, poses (count, 7), sec, nanosec) of a message of ``layout``.
+
+    Reads as cdr.parse_pose_array reads a little-endian message; ``read`` False: the full way.
+    """
+    at = _after_layout(message, layout)
+    if at < 0:
+        return False, np.empty((0, POSE_FIELDS)), 0, 0
+    body = message[ENCAPSULATION_SIZE:]
+    if count:
+        at = (at + 7) // 8 * 8
+    end = at + 8 * POSE_FIELDS * count
+    if end > body.shape[0] or body.shape[0] - end > MAX_TRAILING_BYTES:
+        return False, np.empty((0, POSE_FIELDS)), 0, 0
+    sec, nanosec = _stamp(body)
+    return True, _float64s(body, at, POSE_FIELDS * count).reshape((count, POSE_FIELDS)), sec, \
+        nanosec
+
+
+@kernel
+def _answer_joints(message, layout, name_count, entries, joints, values, known, model_ints,
+                   model_floats, base_pose, pairs, keys, settings, floats, ints):
+    """Answer a message of ``layout`` (JointLane.answer), or return answered = False.
+
+    Reads as cdr.parse_joint_state reads a little-endian message, merges as
+    JointValues.merge, then runs the robot's pass on the joint values.
+    """
+    at = _after_layout(message, layout)
+    if at < 0:
+        return _full_way()
+    body = message[ENCAPSULATION_SIZE:]
+    size = body.shape[0]
+    count, start, end = _float64_sequence(body, at)
+    if count != name_count or count == 0 or end > size:
+        return _full_way()
+    for _ in range(2):  # velocity, effort: only their lengths
+        end = _float64_sequence(body, end)[2]
+        if end > size:
+            return _full_way()
+    if size - end > MAX_JOINT_STATE_TRAILING_BYTES:
+        return _full_way()
+    positions = _float64s(body, start, count)
+    for value in positions:
+        if not math.isfinite(value):
+            return _full_way()
+    for i in range(entries.shape[0]):
+        values[joints[i]] = positions[entries[i]]
+        known[joints[i]] = True
+    for joint_known in known:
+        if not joint_known:
+            return _full_way()
+    contacts, (passed, sat_tests), state, _, _, invalid = check_robot_states(
+        values.reshape((1, values.shape[0])), model_ints, model_floats, base_pose, pairs, keys,
+        settings, floats, ints, 0, 1, np.empty((0, 0, 3, 3)), np.empty((0, 0, 3)))
+    if state >= 0 or invalid:
+        return _full_way()
+    sec, nanosec = _stamp(body)
+    return True, contacts, passed, sat_tests, sec, nanosec
+
+
+@kernel
+def _full_way():
+    return False, np.empty(0, STATE_CONTACT_DTYPE), 0, 0, 0, 0
+
+
+@kernel
+def _after_layout(message, layout):
+    """Return the body offset after ``layout`` in a little-endian message of it, else -1."""
+    body_size = message.shape[0] - ENCAPSULATION_SIZE
+    if body_size < FRAME_ID_AT + layout.shape[0] or message[0] != LITTLE_ENDIAN[0] \
+            or message[1] != LITTLE_ENDIAN[1]:
+        return -1
+    start = ENCAPSULATION_SIZE + FRAME_ID_AT
+    for i in range(layout.shape[0]):
+        if message[start + i] != layout[i]:
+            return -1
+    return FRAME_ID_AT + layout.shape[0]
+
+
+@kernel
+def _stamp(body):
+    """Return the header's (sec, nanosec): an int32 and a uint32."""
+    sec = _uint32(body, 0)
+    return (sec - (1 << 32) if sec >= 1 << 31 else sec), _uint32(body, 4)
+
+
+@kernel
+def _float64_sequence(body, at):
+    """Return a float64 sequence's (count, first byte, end) at body offset ``at``, as CDR."""
+    at = (at + 3) // 4 * 4
+    if at + 4 > body.shape[0]:
+        return 0, at, body.shape[0] + 1  # truncated: an end past the body
+    count = _uint32(body, at)
+    at += 4
+    if count:
+        at = (at + 7) // 8 * 8
+    return count, at, at + 8 * count
+
+
+@kernel
+def _float64s(body, start, count):
+    """Return ``count`` float64 at body offset ``start``: an aligned, native copy."""
+    return body[start:start + 8 * count].copy().view(np.float64)
+
+
+@kernel
+def _uint32(body, at):
+    return (np.int64(body[at]) | np.int64(body[at + 1]) << 8 | np.int64(body[at + 2]) << 16
+            | np.int64(body[at + 3]) << 24)
