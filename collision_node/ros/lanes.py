@@ -37,6 +37,7 @@ from collision_node.ros.cdr import (CDR_LE, ENCAPSULATION_SIZE, MAX_JOINT_STATE_
 FRAME_ID_AT = 8
 LITTLE_ENDIAN = tuple(np.frombuffer(CDR_LE, np.uint8).tolist())
 NO_LAYOUT = np.zeros(0, np.uint8)
+NO_MESSAGE = np.frombuffer(bytes(16), np.uint8)  # read-only, as a message's bytes are
 
 
 class _Layout:
@@ -120,16 +121,22 @@ class JointLane:
         return (contacts, passed, sat_tests, sec, nanosec) if answered else None
 
 
-def compile_lanes():
-    """Compile the lanes' kernels, or load them from numba's cache (a node's start)."""
+def compile_pose_lane():
+    """Compile the PoseArray lane's kernel, or load it from numba's cache."""
+    _read_poses(NO_MESSAGE, NO_LAYOUT, 1)
+
+
+def compile_joint_lane():
+    """Compile the joint_states lane's kernel, or load it from numba's cache.
+
+    It calls the robot's pass: best once that is compiled (or loaded), a few seconds then.
+    """
     world = World()
     robot = Robot.from_urdf(WARM_UP_ROBOT)
     world.set_robot(robot)
-    message = np.frombuffer(bytes(16), np.uint8)  # read-only, as a message's bytes are
     no_joints = np.zeros(0, np.int64)
-    _answer_joints(message, NO_LAYOUT, 1, no_joints, no_joints, np.zeros(robot.dof),
+    _answer_joints(NO_MESSAGE, NO_LAYOUT, 1, no_joints, no_joints, np.zeros(robot.dof),
                    np.zeros(robot.dof, np.bool_), *world.robot_pass().kernel_arguments())
-    _read_poses(message, NO_LAYOUT, 1)
 
 
 @kernel
