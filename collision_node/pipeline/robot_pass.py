@@ -111,17 +111,6 @@ class RobotRows:
         self._workspaces = [_workspace(bodies.robot.half_extents, table, pad,
                                        len(bodies.robot.model.parents), len(j))]
 
-    def kernel_arguments(self):
-        """Return check_robot_states' arguments after the states, of the first workspace.
-
-        (model ints, model floats, base pose, pairs, keys, settings, workspace floats and
-        ints): for a kernel of the caller's that runs the pass on one state at a time.
-        """
-        model_ints, model_floats = self.bodies.packed_model
-        floats, ints = self._workspaces[0]
-        return (model_ints, model_floats, self.bodies.base_pose, self.pairs, self.keys,
-                self.settings, floats, ints)
-
     def result(self, contacts, passed, sat_tests, ms, states):
         """Return the Result of ``states`` states checked (``passed`` pairs, ``sat_tests``)."""
         contacts.flags.writeable = False

@@ -176,7 +176,7 @@ def _compile_section(name):
     return name, progress.compiled, time.monotonic() - start
 
 
-def warm_up_in_background(compile_first, report=None, then=None):
+def warm_up_in_background(compile_first, report=None):
     """Ready every kernel in a thread of its own, while the process goes on; return the thread.
 
     ``compile_first``: the cache is probably cold (a start just compiled): the kernels are
@@ -184,9 +184,8 @@ def warm_up_in_background(compile_first, report=None, then=None):
     that the compile holds neither this process's interpreter lock nor its CPU time. Then
     :func:`warm_up` in this process loads every kernel from numba's cache (about a second), so
     that no later tick waits for one. A tick that needs a kernel before that compiles or loads
-    it itself, as numba does on a first call. ``then()``, if given, readies the caller's own
-    kernels after these; ``report(line)``, if given, hears when every kernel is ready.
-    Kernels are the process's: a second call returns the first call's thread.
+    it itself, as numba does on a first call. ``report(line)``, if given, hears when every
+    kernel is ready. Kernels are the process's: a second call returns the first call's thread.
     """
     global _background
     with _background_lock:
@@ -200,8 +199,6 @@ def warm_up_in_background(compile_first, report=None, then=None):
                     if _stopping.is_set():
                         return
                     warm_up([name])
-                if then is not None:
-                    then()
                 if report is not None:
                     report('every other kernel ready, in the background in %.1f s'
                            % (time.monotonic() - start))

@@ -1,4 +1,4 @@
-"""Lanes: a publisher's next message of a known layout read (and checked) in one kernel.
+"""Lanes: a publisher's next message of a known layout read in one kernel.
 
 A publisher sends the same header at a steady rate: a driver's joint_states name the same
 joints in the same frame, a tracker's PoseArray holds as many poses in the same frame. The
@@ -11,8 +11,8 @@ A next message whose bytes there are the same is read in one kernel:
 
 * :class:`PoseLane` reads the poses into an aligned array: the node steps the World on them
   as on the full way's (which validates every pose, so the lane reads only the layout);
-* :class:`JointLane` reads the positions, merges them into the joint values and runs the
-  robot's pass (robot_pass.check_robot_states, the pass World.check_joints runs).
+* :class:`JointLane` reads the positions and merges them into the joint values; then the
+  robot's pass (robot_pass.RobotRows.check, which World.check_joints runs) checks them.
 
 A lane never refuses: a message it cannot answer exactly as the full way would (another
 layout, big-endian CDR, lengths or values the full way refuses, a joint still without a
@@ -25,11 +25,6 @@ import math
 import numpy as np
 
 from collision_node.pipeline._jit import kernel
-from collision_node.pipeline.contacts import STATE_CONTACT_DTYPE
-from collision_node.pipeline.robot import Robot
-from collision_node.pipeline.robot_pass import check_robot_states
-from collision_node.pipeline.warm_up import WARM_UP_ROBOT
-from collision_node.pipeline.world import World
 from collision_node.ros.cdr import (CDR_LE, ENCAPSULATION_SIZE, MAX_JOINT_STATE_TRAILING_BYTES,
                                     MAX_TRAILING_BYTES, POSE_FIELDS, PoseArrayView)
 
@@ -115,28 +110,22 @@ class JointLane:
         if rows is None or joints is None or layout.owner is None \
                 or joints.merged_names is not layout.owner:
             return None
-        answered, contacts, passed, sat_tests, sec, nanosec = _answer_joints(
-            np.frombuffer(buffer, np.uint8), layout.bytes, self._name_count,
-            *joints.merge_arrays(), *rows.kernel_arguments())
-        return (contacts, passed, sat_tests, sec, nanosec) if answered else None
+        entries, indices, values, known = joints.merge_arrays()
+        merged, sec, nanosec = _merge_joints(np.frombuffer(buffer, np.uint8), layout.bytes,
+                                             self._name_count, entries, indices, values, known)
+        if not merged:
+            return None
+        contacts, (passed, sat_tests), state, _, _, invalid = rows.check(
+            values.reshape(1, -1), 0, 1)
+        return None if state >= 0 or invalid else (contacts, passed, sat_tests, sec, nanosec)
 
 
-def compile_pose_lane():
-    """Compile the PoseArray lane's kernel, or load it from numba's cache."""
+def compile_lanes():
+    """Compile the lanes' kernels, or load them from numba's cache."""
     _read_poses(NO_MESSAGE, NO_LAYOUT, 1)
-
-
-def compile_joint_lane():
-    """Compile the joint_states lane's kernel, or load it from numba's cache.
-
-    It calls the robot's pass: best once that is compiled (or loaded), a few seconds then.
-    """
-    world = World()
-    robot = Robot.from_urdf(WARM_UP_ROBOT)
-    world.set_robot(robot)
     no_joints = np.zeros(0, np.int64)
-    _answer_joints(NO_MESSAGE, NO_LAYOUT, 1, no_joints, no_joints, np.zeros(robot.dof),
-                   np.zeros(robot.dof, np.bool_), *world.robot_pass().kernel_arguments())
+    _merge_joints(NO_MESSAGE, NO_LAYOUT, 1, no_joints, no_joints, np.zeros(1),
+                  np.zeros(1, np.bool_))
 
 
 @kernel
@@ -160,49 +149,39 @@ def _read_poses(message, layout, count):
 
 
 @kernel
-def _answer_joints(message, layout, name_count, entries, joints, values, known, model_ints,
-                   model_floats, base_pose, pairs, keys, settings, floats, ints):
-    """Answer a message of ``layout`` (JointLane.answer), or return answered = False.
+def _merge_joints(message, layout, name_count, entries, joints, values, known):
+    """Merge a message of ``layout`` into the joint values; return (merged, sec, nanosec).
 
-    Reads as cdr.parse_joint_state reads a little-endian message, merges as
-    JointValues.merge, then runs the robot's pass on the joint values.
+    Reads as cdr.parse_joint_state reads a little-endian message and merges as
+    JointValues.merge; merged False: the full way (the values then changed only if every
+    check passed and a joint is still without a value, as the full way changes them).
     """
     at = _after_layout(message, layout)
     if at < 0:
-        return _full_way()
+        return False, 0, 0
     body = message[ENCAPSULATION_SIZE:]
     size = body.shape[0]
     count, start, end = _float64_sequence(body, at)
     if count != name_count or count == 0 or end > size:
-        return _full_way()
+        return False, 0, 0
     for _ in range(2):  # velocity, effort: only their lengths
         end = _float64_sequence(body, end)[2]
         if end > size:
-            return _full_way()
+            return False, 0, 0
     if size - end > MAX_JOINT_STATE_TRAILING_BYTES:
-        return _full_way()
+        return False, 0, 0
     positions = _float64s(body, start, count)
     for value in positions:
         if not math.isfinite(value):
-            return _full_way()
+            return False, 0, 0
     for i in range(entries.shape[0]):
         values[joints[i]] = positions[entries[i]]
         known[joints[i]] = True
     for joint_known in known:
         if not joint_known:
-            return _full_way()
-    contacts, (passed, sat_tests), state, _, _, invalid = check_robot_states(
-        values.reshape((1, values.shape[0])), model_ints, model_floats, base_pose, pairs, keys,
-        settings, floats, ints, 0, 1, np.empty((0, 0, 3, 3)), np.empty((0, 0, 3)))
-    if state >= 0 or invalid:
-        return _full_way()
+            return False, 0, 0
     sec, nanosec = _stamp(body)
-    return True, contacts, passed, sat_tests, sec, nanosec
-
-
-@kernel
-def _full_way():
-    return False, np.empty(0, STATE_CONTACT_DTYPE), 0, 0, 0, 0
+    return True, sec, nanosec
 
 
 @kernel

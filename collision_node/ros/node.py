@@ -88,8 +88,7 @@ from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import parse_joint_state, parse_pose_array
 from collision_node.ros.joints import JointValues
-from collision_node.ros.lanes import (compile_joint_lane, compile_pose_lane, JointLane,
-                                      PoseLane)
+from collision_node.ros.lanes import compile_lanes, JointLane, PoseLane
 from collision_node.ros.lifetime import InitError, RosProgram
 from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.memory import keep_heap_memory
@@ -295,13 +294,9 @@ class CollisionNode(LifecycleNode):
             warm_up_like(world, config.dynamic_half_extents,
                          robot if config.robot_description else None)
             compile_writer()
-            compile_pose_lane()
-            if config.robot_description:
-                compile_joint_lane()
-        # A robot from the topics later finds its lane ready (lanes.py), as its pass.
+            compile_lanes()
         self._background_warm_up = warm_up_in_background(progress.compiled > 0,
-                                                         self.get_logger().info,
-                                                         then=compile_joint_lane)
+                                                         self.get_logger().info)
         self._cloud_writer = CloudWriter()
         # The robot's answers carry their state (World.check_joints); collisions does not.
         self._joints_writer = CloudWriter(STATE_CONTACT_DTYPE, CONTACT_DTYPE.names)

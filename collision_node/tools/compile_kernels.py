@@ -16,7 +16,7 @@ import time
 
 from collision_node.pipeline.jit_progress import compile_progress
 from collision_node.pipeline.warm_up import compile_in_processes, SECTIONS
-from collision_node.ros.lanes import compile_joint_lane, compile_pose_lane
+from collision_node.ros.lanes import compile_lanes
 from collision_node.ros.messages import compile_writer
 
 
@@ -31,12 +31,9 @@ def main(args=None):
           % (len(SECTIONS), processes), flush=True)
     with compile_progress(lambda line: None) as progress:
         compile_writer()
-        compile_pose_lane()
+        compile_lanes()
     kernels = progress.compiled + compile_in_processes(
         processes=processes, report=lambda line: print(line, flush=True))
-    with compile_progress(lambda line: None) as progress:
-        compile_joint_lane()  # after the robot's pass, which it calls, is in the cache
-    kernels += progress.compiled
     print('compiled %d kernels in %.0f s' % (kernels, time.monotonic() - start), flush=True)
 
 
