@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.ros.cdr import (CDR_LE, ENCAPSULATION_SIZE, MAX_JOINT_STATE_TRAILING_BYTES,
                                     MAX_TRAILING_BYTES, POSE_FIELDS, PoseArrayView)
 
@@ -184,7 +184,7 @@ def _merge_joints(message, layout, name_count, entries, joints, values, known):
     return True, sec, nanosec
 
 
-@kernel
+@inlined_kernel
 def _after_layout(message, layout):
     """Return the body offset after ``layout`` in a little-endian message of it, else -1."""
     body_size = message.shape[0] - ENCAPSULATION_SIZE
@@ -198,14 +198,14 @@ def _after_layout(message, layout):
     return FRAME_ID_AT + layout.shape[0]
 
 
-@kernel
+@inlined_kernel
 def _stamp(body):
     """Return the header's (sec, nanosec): an int32 and a uint32."""
     sec = _uint32(body, 0)
     return (sec - (1 << 32) if sec >= 1 << 31 else sec), _uint32(body, 4)
 
 
-@kernel
+@inlined_kernel
 def _float64_sequence(body, at):
     """Return a float64 sequence's (count, first byte, end) at body offset ``at``, as CDR."""
     at = (at + 3) // 4 * 4
@@ -218,13 +218,13 @@ def _float64_sequence(body, at):
     return count, at, at + 8 * count
 
 
-@kernel
+@inlined_kernel
 def _float64s(body, start, count):
     """Return ``count`` float64 at body offset ``start``: an aligned, native copy."""
     return body[start:start + 8 * count].copy().view(np.float64)
 
 
-@kernel
+@inlined_kernel
 def _uint32(body, at):
     return (np.int64(body[at]) | np.int64(body[at + 1]) << 8 | np.int64(body[at + 2]) << 16
             | np.int64(body[at + 3]) << 24)

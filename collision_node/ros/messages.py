@@ -14,7 +14,7 @@ import array
 import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
 from collision_node.ros.cdr import (ENCAPSULATION_SIZE, INT32_RANGE, point_cloud_parts,
                                     POINT_FIELD_DATATYPES, UINT32_RANGE)
@@ -203,7 +203,7 @@ def _write_cloud(buffer, head, sec, nanosec, width_at, rows, row_size, is_float,
     return at + tail.shape[0]
 
 
-@kernel
+@inlined_kernel
 def _put_uint32(buffer, at, value):
     for byte in range(4):
         buffer[at + byte] = (value >> (8 * byte)) & 0xFF
