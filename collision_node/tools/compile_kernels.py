@@ -12,7 +12,6 @@ No ROS is started.
 import argparse
 import os
 import sys
-import threading
 import time
 
 from collision_node.pipeline.jit_progress import compile_progress
@@ -30,15 +29,11 @@ def main(args=None):
     start = time.monotonic()
     print('compiling the numba kernels missing from its cache: %d parts in %d processes'
           % (len(SECTIONS), processes), flush=True)
-    # The clouds' and lanes' few kernels compile in this process while the others' processes
-    # work: it would otherwise wait on them, a CPU idle for the seconds these take first.
-    ros = threading.Thread(target=lambda: (compile_writer(), compile_lanes()))
     with compile_progress(lambda line: None) as progress:
-        ros.start()
-        kernels = compile_in_processes(processes=processes,
-                                       report=lambda line: print(line, flush=True))
-        ros.join()
-    kernels += progress.compiled
+        compile_writer()
+        compile_lanes()
+    kernels = progress.compiled + compile_in_processes(
+        processes=processes, report=lambda line: print(line, flush=True))
     print('compiled %d kernels in %.0f s' % (kernels, time.monotonic() - start), flush=True)
 
 
