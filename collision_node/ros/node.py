@@ -697,9 +697,7 @@ class CollisionNode(LifecycleNode):
                     else:  # the robot's pass: the same answer, forward kinematics inside
                         result = self._world.check_joints(q)
                         writer = self._joints_writer
-                        # The boxes' poses only for the markers, when they are due.
-                        poses = self._world.robot_poses(q)[0] \
-                            if time.monotonic() >= self._next_markers_s else None
+                        poses = self._marker_poses(q)
         except REFUSALS as error:  # ValueError: the World's filters sized for other bodies
             self._reject('joint_states', error)
             return
@@ -723,14 +721,18 @@ class CollisionNode(LifecycleNode):
             result = rows.result(contacts, passed, sat_tests,
                                  1e3 * (time.perf_counter() - start), 1)
             half_extents = self._robot.half_extents
-            # The boxes' poses only for the markers, when they are due.
-            poses = world.robot_poses(self._joints.q())[0] \
-                if time.monotonic() >= self._next_markers_s else None
+            poses = self._marker_poses(self._joints.q())
         self._monitor.received()
         self._monitor.missing_joints(())
         self._publish_tick(start, start, result, sec, nanosec, poses, half_extents,
                            self._joints_writer)
         return True
+
+    def _marker_poses(self, q):
+        """Return the robot's box poses at q for the markers when they are due, else None."""
+        if time.monotonic() < self._next_markers_s:
+            return None
+        return self._world.robot_poses(q)[0]
 
     def _keep_joint_states(self, buffer):
         """While not active: keep the joint values (answer nothing); count an ignored input."""
