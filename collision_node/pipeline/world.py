@@ -186,11 +186,9 @@ class World:
         return self._robot.check_joints(q, ONE_PASS_PAIRS)
 
     def robot_pass(self):
-        """Return the robot's pass as check_joints runs it now (robot_pass.RobotRows), or None.
+        """Return the RobotRows check_joints runs now (None: no robot, or past one pass).
 
-        None without a robot, or for a scene past one pass. For a caller that runs the pass
-        in a kernel of its own (the node's joint_states lane): it holds until the scene or
-        the robot changes, so ask again for each input.
+        The node's joint_states lane checks with it; ask again for each input.
         """
         return self._robot.robot_pass(ONE_PASS_PAIRS)
 
