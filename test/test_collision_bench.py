@@ -438,18 +438,19 @@ def test_robot_model_section_gives_every_peer_the_same_answers(tiny_run):
         assert rows[robot_model.OURS_JOINTS]['skipped'] == robot_model.PANDA_HINT
         return
     assert list(rows) == [robot_model.OURS_JOINTS, robot_model.OURS_BATCH,
-                          robot_model.MUJOCO_MESH, robot_model.MUJOCO_BOX,
-                          robot_model.PIN_COAL, robot_model.TRAJECTORY, robot_model.WAYPOINTS,
-                          robot_model.FALSE_ALARMS]
+                          robot_model.OURS_EVERY_CORE, robot_model.MUJOCO_MESH,
+                          robot_model.MUJOCO_BOX, robot_model.PIN_COAL, robot_model.TRAJECTORY,
+                          robot_model.WAYPOINTS, robot_model.FALSE_ALARMS]
     plan = bench.PLANS['tiny']
     ours = rows[robot_model.OURS_JOINTS]
     assert (ours['boxes'], ours['dof'], ours['allowed_pairs']) == (17, 8, 44)
     assert ours['states'] == plan.panda_states * plan.panda_rounds
     assert 0 < ours['colliding_states'] < 1  # a mix of colliding and free states
-    batch = rows[robot_model.OURS_BATCH]
-    assert batch['states_per_call'] == plan.panda_batch_states
-    assert batch['compared_states'] == plan.panda_batch_states * plan.panda_rounds
-    assert batch['same_answers'] and batch['states_differing'] == 0
+    for name in (robot_model.OURS_BATCH, robot_model.OURS_EVERY_CORE):
+        batch = rows[name]
+        assert batch['states_per_call'] == plan.panda_batch_states
+        assert batch['compared_states'] == plan.panda_batch_states * plan.panda_rounds
+        assert batch['same_answers'] and batch['states_differing'] == 0
     for name, hint in PANDA_PEERS.items():
         row = rows[name]
         if 'skipped' in row:
@@ -470,8 +471,8 @@ def test_robot_model_section_gives_every_peer_the_same_answers(tiny_run):
     markdown = (output / 'results.md').read_text()
     assert '## Panda from its URDF' in markdown
     targets = [t for t in results['targets'] if t['target'].startswith('Panda')]
-    assert len(targets) == 3
-    assert targets[2]['passed'] == (path['vs_waypoints'] <= report.PANDA_TRAJECTORY_MAX_RATIO)
+    assert len(targets) == 4
+    assert targets[3]['passed'] == (path['vs_waypoints'] <= report.PANDA_TRAJECTORY_MAX_RATIO)
 
 
 def test_robot_model_section_skips_each_peer_not_installed(monkeypatch):
@@ -483,8 +484,8 @@ def test_robot_model_section_skips_each_peer_not_installed(monkeypatch):
         assert by_method[name] == {'method': name, 'skipped': hint}
     assert 'vs_mujoco' not in by_method[robot_model.OURS_JOINTS]
     assert by_method[robot_model.OURS_BATCH]['same_answers']
-    one, batch, path = report.robot_model_targets(rows)
-    assert one['passed'] is batch['passed'] is None
+    one, batch, every_core, path = report.robot_model_targets(rows)
+    assert one['passed'] is batch['passed'] is every_core['passed'] is None
     assert one['measured'] == 'not measured: ' + robot.MUJOCO_HINT
     assert path['passed'] in (True, False)  # ours alone
     settings = bench.PLANS['tiny']._asdict()
@@ -517,21 +518,24 @@ def test_robot_model_targets_are_judged_on_the_measured_numbers():
     same = {'same_answers': True, 'states_differing': 0, 'compared_states': 10}
     rows = [dict(same, method=robot_model.OURS_JOINTS, per_state_us=6.0, states_per_call=1),
             dict(same, method=robot_model.OURS_BATCH, per_state_us=2.0, states_per_call=4000),
+            dict(same, method=robot_model.OURS_EVERY_CORE, per_state_us=0.9,
+                 states_per_call=4000),
             mujoco,
             {'method': robot_model.TRAJECTORY, 'kind': 'trajectory', 'waypoints': 100,
              'per_call_ms': 2.0, 'vs_waypoints': 2.5},
             {'method': robot_model.WAYPOINTS, 'kind': 'trajectory', 'waypoints': 100,
              'per_call_ms': 0.8, 'vs_waypoints': 1.0}]
-    one, batch, path = report.robot_model_targets(rows)
-    assert (one['passed'], batch['passed'], path['passed']) == (True, False, True)
+    one, batch, every_core, path = report.robot_model_targets(rows)
+    assert (one['passed'], batch['passed'], every_core['passed'], path['passed']) == \
+        (True, False, True, True)
     assert one['measured'].startswith('0.6x') and path['measured'].startswith('2.5x')
     rows[0].update(same_answers=False, states_differing=1, only_ours=1, only_peer=0,
                    colliding_pairs_differing=1, boundary_only=False,
                    worst_gap_m=0.01)  # quick but wrong: not met
     assert report.robot_model_targets(rows)[0]['passed'] is False
-    rows[3]['vs_waypoints'] = 3.5
-    assert report.robot_model_targets(rows)[2]['passed'] is False
-    assert [t['passed'] for t in report.robot_model_targets(None)] == [None, None, None]
+    rows[4]['vs_waypoints'] = 3.5
+    assert report.robot_model_targets(rows)[3]['passed'] is False
+    assert [t['passed'] for t in report.robot_model_targets(None)] == [None] * 4
 
 
 def test_robot_model_mujoco_tree_places_the_boxes_as_ours():

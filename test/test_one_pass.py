@@ -17,7 +17,8 @@ import pytest
 from collision_node import World
 from collision_node.pipeline import one_pass, scenes, world as world_module
 from collision_node.pipeline.broadphase import NAMES
-from collision_node.pipeline.contacts import CONTACT_DTYPE, DYNAMIC, STATE_CONTACT_DTYPE, STATIC
+from collision_node.pipeline.contacts import (CONTACT_DTYPE, DYNAMIC, joined, STATE_CONTACT_DTYPE,
+                                              STATIC)
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 IDENTITY = [0.0, 0.0, 0.0, 1.0]
@@ -216,6 +217,18 @@ def test_check_states_answers_each_state_as_a_step_of_it_alone(threads, monkeypa
     assert keys == sorted(keys) and len(keys) > 100
     assert result.stats['states'] == 300
     world.close()
+
+
+def test_joined_contacts_are_numpys_concatenation_byte_for_byte():
+    rng = np.random.default_rng(5)
+    parts = [np.zeros(n, STATE_CONTACT_DTYPE) for n in (3, 0, 5, 1)]
+    for part in parts:
+        for name in STATE_CONTACT_DTYPE.names:
+            part[name] = rng.integers(0, 1000, len(part))
+    together = joined(parts)
+    assert together.dtype == STATE_CONTACT_DTYPE
+    assert together.tolist() == np.concatenate(parts).tolist()
+    assert joined(parts[:1]) is parts[0]
 
 
 @pytest.mark.parametrize('name', NAMES)

@@ -10,6 +10,7 @@ joint state within the limits (seeded, about a third of them colliding) every me
 * ours, one state per call: ``World.set_robot(robot)``, then ``World.check_joints(q)`` with
   q (dof,), forward kinematics included;
 * ours, K states per call: ``World.check_joints(q)`` with q (K, dof), timed per call / K;
+* the same on ``World(threads=os.cpu_count())``: the K states in chunks over the cores;
 * MuJoCo: an MJCF model of the same tree (:func:`mujoco_model`: a body per link at its URDF
   joint origin, a hinge or slide joint on its URDF axis, the boxes as geoms at their poses in
   their links, the static boxes as world geoms, ``<exclude>`` for every filtered link pair);
@@ -73,6 +74,7 @@ PATH_TRIES = 200             # random smooth paths tried for a free one
 
 OURS_JOINTS = 'collision_node World.check_joints, one state'
 OURS_BATCH = 'collision_node World.check_joints, K states'
+OURS_EVERY_CORE = 'collision_node World.check_joints, K states, a thread a core'
 PIN_COAL = 'pinocchio + coal'
 MUJOCO_MESH = robot.MUJOCO_MESH
 MUJOCO_BOX = robot.MUJOCO_BOX
@@ -115,9 +117,9 @@ def load_panda():
         return Robot.from_urdf(urdf_path, srdf_path)
 
 
-def panda_world(panda):
-    """Return a default World with the static boxes and the Panda at the origin."""
-    world = World()
+def panda_world(panda, threads=1):
+    """Return a default World (but ``threads``) with the static boxes and the Panda at 0."""
+    world = World(threads=threads)
     world.set_static(STATIC_POSES, STATIC_HALF_EXTENTS)
     world.set_robot(panda)
     return world
@@ -185,6 +187,15 @@ class OursBatch(robot.OursBatch):
 
     def call(self, states):
         return self.world.check_joints(states)
+
+
+class OursEveryCore(OursBatch):
+    name = OURS_EVERY_CORE
+    setup = ('the same on a World(threads=os.cpu_count()): the states in chunks over the '
+             'calling thread and pooled helpers')
+
+    def __init__(self, panda):
+        self.world = panda_world(panda, threads=os.cpu_count())
 
 
 def mujoco_model(mujoco, panda, urdf_path, meshes):
@@ -444,6 +455,7 @@ def methods(panda, urdf_path):
     made = []
     for name, make in ((OURS_JOINTS, lambda: OursJoints(panda)),
                        (OURS_BATCH, lambda: OursBatch(panda)),
+                       (OURS_EVERY_CORE, lambda: OursEveryCore(panda)),
                        (MUJOCO_MESH, lambda: MuJoCo(panda, urdf_path, meshes=True)),
                        (MUJOCO_BOX, lambda: MuJoCo(panda, urdf_path, meshes=False)),
                        (PIN_COAL, lambda: PinCoal(panda, urdf_path))):
@@ -492,6 +504,7 @@ def robot_model_rows(states_per_round, batch_states, rounds, segments, seed=0, p
         states = random_states(panda, states_per_round, rng)
         batch = random_states(panda, batch_states, rng)
         every_state.append(states)
+        every_batch.append(batch)  # the same batch for every batch method
         turn = round_index % len(turns)
         for method in turns[turn:] + turns[:turn]:
             if method in trajectory:
@@ -506,7 +519,7 @@ def robot_model_rows(states_per_round, batch_states, rounds, segments, seed=0, p
                 continue
             try:
                 robot.time_round(method, states, batch, round_index == 0, states_per_round,
-                                 batch_states, seconds, answers, every_batch)
+                                 batch_states, seconds, answers, [])
             except Exception as error:  # one broken method must not hide the others
                 rows[method.name] = {'method': method.name, 'setup': method.setup,
                                      'error': '%s: %s' % (type(error).__name__, error)}
@@ -557,8 +570,9 @@ def robot_model_rows(states_per_round, batch_states, rounds, segments, seed=0, p
                     rows[name]['vs_waypoints']))
     rows[FALSE_ALARMS] = false_alarms(referee, short_segments(panda, segments, rng))
     progress('robot_model: %s' % false_alarm_text(rows[FALSE_ALARMS]))
-    ordered = [rows[name] for name in (OURS_JOINTS, OURS_BATCH, MUJOCO_MESH, MUJOCO_BOX,
-                                       PIN_COAL, TRAJECTORY, WAYPOINTS, FALSE_ALARMS)
+    ordered = [rows[name] for name in (OURS_JOINTS, OURS_BATCH, OURS_EVERY_CORE, MUJOCO_MESH,
+                                       MUJOCO_BOX, PIN_COAL, TRAJECTORY, WAYPOINTS,
+                                       FALSE_ALARMS)
                if name in rows]
     robot._add_ratios([row for row in ordered if row.get('kind') != 'trajectory'])
     return ordered

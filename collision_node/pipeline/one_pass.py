@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
+from collision_node.pipeline.contacts import CONTACT_DTYPE, joined, STATE_CONTACT_DTYPE
 from collision_node.pipeline.general_path import GeneralPath
 from collision_node.pipeline.obb import InvalidBox, REASONS
 from collision_node.pipeline.small_scene import check_scene, check_states
@@ -176,7 +176,7 @@ class Batches:
                 raise ValueError('state %d: dynamic body %d: %s' % (state, body, REASONS[code]))
             if invalid:
                 raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
-        contacts = parts[0][0] if len(parts) == 1 else np.concatenate([p[0] for p in parts])
+        contacts = joined([part[0] for part in parts])
         return contacts, sum(part[1] for part in parts)
 
     def _one_by_one(self, states, extents):

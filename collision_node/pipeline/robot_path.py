@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from collision_node.pipeline.contacts import joined
 from collision_node.pipeline.obb import REASONS
 from collision_node.pipeline.one_pass import MIN_STATES_PER_CHUNK
 from collision_node.pipeline.robot_bodies import (DEFAULT_RESOLUTION, first_uncleared_pieces,
@@ -74,7 +75,7 @@ class RobotPath:
                 raise ValueError('state %d: dynamic body %d: %s' % (state, box, REASONS[code]))
             passed += part_passed
             sat_tests += part_sat_tests
-        contacts = parts[0][0] if len(parts) == 1 else np.concatenate([p[0] for p in parts])
+        contacts = joined([part[0] for part in parts])
         return rows.result(contacts, passed, sat_tests, 1e3 * (time.perf_counter() - start),
                            len(states))
 
