@@ -5,16 +5,15 @@
 .ci/setup-venv runs it once the package is installed, so that the first start of the node
 (and of collision_demo) loads the kernels in about a second instead of compiling them. It
 compiles the warm-up's sections (collision_node.pipeline.warm_up.SECTIONS) in one process a
-CPU, the clouds' kernel and the lanes' (ros/lanes.py), into the cache the node will read (the
-same NUMBA_CACHE_DIR, if one is set); a kernel already in the cache is loaded, not compiled.
-No ROS is started.
+CPU, and the clouds' kernel and the lanes' (ros/lanes.py) in the first wave of them, into the
+cache the node will read (the same NUMBA_CACHE_DIR, if one is set); a kernel already in the
+cache is loaded, not compiled. No ROS is started.
 """
 import argparse
 import os
 import sys
 import time
 
-from collision_node.pipeline.jit_progress import compile_progress
 from collision_node.pipeline.warm_up import compile_in_processes, SECTIONS
 from collision_node.ros.lanes import compile_lanes
 from collision_node.ros.messages import compile_writer
@@ -28,13 +27,17 @@ def main(args=None):
     processes = max(1, parser.parse_args(args).processes)
     start = time.monotonic()
     print('compiling the numba kernels missing from its cache: %d parts in %d processes'
-          % (len(SECTIONS), processes), flush=True)
-    with compile_progress(lambda line: None) as progress:
-        compile_writer()
-        compile_lanes()
-    kernels = progress.compiled + compile_in_processes(
-        processes=processes, report=lambda line: print(line, flush=True))
+          % (len(SECTIONS) + 1, processes), flush=True)
+    kernels = compile_in_processes(processes=processes,
+                                   report=lambda line: print(line, flush=True),
+                                   first=[('clouds and lanes', clouds_and_lanes)])
     print('compiled %d kernels in %.0f s' % (kernels, time.monotonic() - start), flush=True)
+
+
+def clouds_and_lanes():
+    """Compile the clouds' writer and the lanes' kernels (the ROS layer's own)."""
+    compile_writer()
+    compile_lanes()
 
 
 if __name__ == '__main__':
