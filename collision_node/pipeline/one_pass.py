@@ -176,7 +176,7 @@ class Batches:
                 raise ValueError('state %d: dynamic body %d: %s' % (state, body, REASONS[code]))
             if invalid:
                 raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
-        contacts = joined([part[0] for part in parts])
+        contacts = parts[0][0] if len(parts) == 1 else joined([part[0] for part in parts])
         return contacts, sum(part[1] for part in parts)
 
     def _one_by_one(self, states, extents):

@@ -75,7 +75,7 @@ class RobotPath:
                 raise ValueError('state %d: dynamic body %d: %s' % (state, box, REASONS[code]))
             passed += part_passed
             sat_tests += part_sat_tests
-        contacts = joined([part[0] for part in parts])
+        contacts = parts[0][0] if len(parts) == 1 else joined([part[0] for part in parts])
         return rows.result(contacts, passed, sat_tests, 1e3 * (time.perf_counter() - start),
                            len(states))
 
