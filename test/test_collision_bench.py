@@ -202,7 +202,7 @@ def test_python_fcl_finds_the_same_pairs(tiny_run):
 
 def test_every_target_is_listed(tiny_run):
     _, _, results = tiny_run
-    assert len(results['targets']) == 14
+    assert len(results['targets']) == 15
     for target in results['targets']:
         assert target['passed'] in (True, False, None)
 

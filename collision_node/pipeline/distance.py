@@ -177,33 +177,12 @@ def _closest_features(rel, t, ea, eb, tie, by_direction):
                   max(seps[0], seps[1], seps[2]), max(seps[3], seps[4], seps[5]),
                   max(seps[6], seps[7], seps[8]))
     floor = max(largest, 0.0) - tie
-    if seps[0] >= floor:
-        least, chosen = _choose(rel, t, ea, eb, by_direction, tie_sq, least, chosen,
-                                _edge_pairs(rel, t, ea, eb, 0, 0, least + tie_sq))
-    if seps[1] >= floor:
-        least, chosen = _choose(rel, t, ea, eb, by_direction, tie_sq, least, chosen,
-                                _edge_pairs(rel, t, ea, eb, 0, 1, least + tie_sq))
-    if seps[2] >= floor:
-        least, chosen = _choose(rel, t, ea, eb, by_direction, tie_sq, least, chosen,
-                                _edge_pairs(rel, t, ea, eb, 0, 2, least + tie_sq))
-    if seps[3] >= floor:
-        least, chosen = _choose(rel, t, ea, eb, by_direction, tie_sq, least, chosen,
-                                _edge_pairs(rel, t, ea, eb, 1, 0, least + tie_sq))
-    if seps[4] >= floor:
-        least, chosen = _choose(rel, t, ea, eb, by_direction, tie_sq, least, chosen,
-                                _edge_pairs(rel, t, ea, eb, 1, 1, least + tie_sq))
-    if seps[5] >= floor:
-        least, chosen = _choose(rel, t, ea, eb, by_direction, tie_sq, least, chosen,
-                                _edge_pairs(rel, t, ea, eb, 1, 2, least + tie_sq))
-    if seps[6] >= floor:
-        least, chosen = _choose(rel, t, ea, eb, by_direction, tie_sq, least, chosen,
-                                _edge_pairs(rel, t, ea, eb, 2, 0, least + tie_sq))
-    if seps[7] >= floor:
-        least, chosen = _choose(rel, t, ea, eb, by_direction, tie_sq, least, chosen,
-                                _edge_pairs(rel, t, ea, eb, 2, 1, least + tie_sq))
-    if seps[8] >= floor:
-        least, chosen = _choose(rel, t, ea, eb, by_direction, tie_sq, least, chosen,
-                                _edge_pairs(rel, t, ea, eb, 2, 2, least + tie_sq))
+    # The edge pairs in a loop, (i, j) numbers at run time: numba compiles a kernel again for
+    # each constant argument (nine _edge_pairs, 3 s of a first start), and few pass the floor.
+    for k in range(9):
+        if seps[k] >= floor:
+            least, chosen = _choose(rel, t, ea, eb, by_direction, tie_sq, least, chosen,
+                                    _edge_pairs(rel, t, ea, eb, k // 3, k % 3, least + tie_sq))
     return least, chosen[1], chosen[2], chosen[3]
 
 
@@ -370,9 +349,9 @@ def _cyclic(v, i):
 def _edge_pairs(rel, t, ea, eb, i, j, limit):
     """Return (d², p, q, v) of the support edges of A along a_i and B along b_j below ``limit``.
 
-    (inf, ...) when their lines are no closer than ``limit`` (a d²). Called with constant i,
-    j: it only picks the numbers, in coordinates turned so that a_i is the first axis (a
-    rotation: distances stay the same), for :func:`_turned_edge_pairs`.
+    (inf, ...) when their lines are no closer than ``limit`` (a d²). It only picks the
+    numbers, in coordinates turned so that a_i is the first axis (a rotation: distances stay
+    the same), for :func:`_turned_edge_pairs`.
     """
     d2, p, q, n = _turned_edge_pairs(
         _cyclic(column(rel, j), i), _cyclic(column(rel, (j + 1) % 3), i),

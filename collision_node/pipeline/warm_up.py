@@ -295,18 +295,21 @@ def _margins():
         world.step(margins.half_moved(0.5), sizes)
 
 
-def _one_pass(margin):
-    """Run the one pass and batches of states, with the World's ``margin`` (0: none at all)."""
+def _one_pass(margins, batches):
+    """Run the one pass at each World margin of ``margins`` (0: none at all), and batches."""
     # Two compiled variants: no margin at all, and margins (the World's, the colliders' own or
     # both: the same types); filters or none are the same types too (SceneRows.filter_table).
+    # ``batches``: check_states too (its own kernels), as a step is checked first.
     scene = _Scene(WARM_UP_BODIES)
     extents = scene.dynamic_half_extents
     states = np.array([scene.dynamic_poses(t) for t in (0.0, 0.5)])
-    world = World(broad_phase='brute_force', margin=margin)
-    world.set_static(scene.static_poses, scene.static_half_extents)
-    for sizes in (extents, extents[0]):
-        world.step(states[0], sizes)
-        world.check_states(states, sizes)
+    for margin in margins:
+        world = World(broad_phase='brute_force', margin=margin)
+        world.set_static(scene.static_poses, scene.static_half_extents)
+        for sizes in (extents, extents[0]):
+            world.step(states[0], sizes)
+            if batches:
+                world.check_states(states, sizes)
 
 
 def _distances():
@@ -377,10 +380,11 @@ def _robot():
 # on a cold cache, Intel Xeon, after the SHARED_FIRST ones), so that processes taking them in
 # turn end together.
 SECTIONS = {
-    'one_pass': functools.partial(_one_pass, 0.0),  # 23, the SAT's without margins
-    'distances': _distances,  # 11
+    'one_pass': functools.partial(_one_pass, (0.0,), False),  # 20, the SAT's without margins
+    'distances': _distances,  # 8
     'robot': _robot,  # 23
-    'one_pass_margins': functools.partial(_one_pass, 0.1),  # 10 after the two above
+    # 12 after the two above: margins, and the batches of states with and without
+    'one_pass_margins': functools.partial(_one_pass, (0.1, 0.0), True),
     'octree': functools.partial(_broad_phase, 'octree'),  # 14
     'continuous': _continuous,  # 9
     'margins': _margins,  # 5
