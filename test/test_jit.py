@@ -121,6 +121,32 @@ changed = {key: (before.get(key), count) for key, count in after.items()
 sys.exit('compiled during ticks: %%s' %% changed if changed else None)
 """ % DOMAIN_ID
 
+# A World readied by warm_up_like alone (no background warm-up): what the node does before
+# it subscribes. Its ticks and what the diagnostics read of them (the stats) add no type.
+WARM_UP_LIKE_CHECK = """
+import sys
+from collision_node.pipeline import scenes
+from collision_node.pipeline._jit import KERNELS
+from collision_node.pipeline.warm_up import warm_up_like
+from collision_node.pipeline.world import World
+
+
+def compiled():
+    return {kernel: len(kernel.overloads) for kernel in KERNELS}
+
+
+arm = scenes.arm()
+world = World()
+world.set_static(arm.static_poses, arm.static_half_extents)
+warm_up_like(world, arm.dynamic_half_extents)
+before = compiled()
+for t in (0.0, 0.1):
+    world.step(arm.dynamic_poses(t), arm.dynamic_half_extents).stats
+changed = [kernel.py_func.__name__ for kernel, count in compiled().items()
+           if before.get(kernel) != count]
+sys.exit('compiled or loaded after warm_up_like: %s' % changed if changed else None)
+"""
+
 # Decorates every kernel (import), then runs one small one, and says where numba put it.
 CACHE_CHECK = """
 import os
@@ -144,6 +170,13 @@ def test_nothing_compiles_during_a_tick():
     static colliders moved, resized and removed.
     """
     done = subprocess.run([sys.executable, '-c', NO_COMPILE_CHECK], cwd=REPO,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+
+
+def test_warm_up_like_readies_a_tick_and_the_stats_the_diagnostics_read():
+    """A node's first diagnostics report once loaded a kernel (34 ms, the executor held)."""
+    done = subprocess.run([sys.executable, '-c', WARM_UP_LIKE_CHECK], cwd=REPO,
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
 

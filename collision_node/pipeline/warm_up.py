@@ -31,6 +31,7 @@ from collision_node.pipeline.distance import box_distance
 from collision_node.pipeline.jit_progress import compile_progress, REPORT_PERIOD_S
 from collision_node.pipeline.robot import Robot
 from collision_node.pipeline.sat import COLLIDING, empty_output
+from collision_node.pipeline.stats import distance_stats
 from collision_node.pipeline.workers import Workers
 from collision_node.pipeline.world import ONE_PASS_PAIRS, ONE_PASS_PHASES, World
 
@@ -119,7 +120,8 @@ def warm_up_like(world, half_extents, robot=None):
         moved = poses.copy()
         moved[::2, 0] += 0.01
         for step_poses in (poses, moved, moved):  # the same input again: the answer reused
-            twin.step(step_poses, sizes)
+            result = twin.step(step_poses, sizes)
+        distance_stats(result.contacts)  # what the diagnostics read of a tick: a kernel too
         twin.check_states(np.array([poses, moved]), sizes)
         robot = description.robot if robot is None else robot
         if robot is not None:
