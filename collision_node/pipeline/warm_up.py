@@ -157,27 +157,40 @@ def compile_in_processes(sections=None, processes=None, report=print, niceness=0
     processes = max(1, min(count, processes or os.cpu_count()))
     start = reported = time.monotonic()
     kernels = done = 0
+
+    def waiting():  # a line a period while no part finishes, as in a start's compile
+        nonlocal reported
+        if time.monotonic() - reported >= REPORT_PERIOD_S:
+            reported = time.monotonic()
+            report('%d of %d parts compiled, %.0f s so far' % (done, count, reported - start))
+
     # spawn, not fork: a fork of a process that compiled (LLVM, numba's threads) is not safe.
     with multiprocessing.get_context('spawn').Pool(processes, os.nice, (niceness,)) as pool:
         for wave in waves:
             finished = pool.imap_unordered(_compile_task, wave)
             for _ in wave:
-                while not (stop is not None and stop.is_set()):
-                    try:
-                        name, compiled, seconds = finished.next(timeout=STOP_POLL_S)
-                        break
-                    except multiprocessing.TimeoutError:  # a line a period, as in a start's
-                        if time.monotonic() - reported >= REPORT_PERIOD_S:
-                            reported = time.monotonic()
-                            report('%d of %d parts compiled, %.0f s so far'
-                                   % (done, count, reported - start))
-                else:
+                answer = _next_answer(finished, stop, waiting)
+                if answer is None:  # stopped
                     return kernels
+                name, compiled, seconds = answer
                 done += 1
                 kernels += compiled
                 report('compiled part %d of %d (%s: %d kernels, %.1f s), %.0f s so far' % (
                     done, count, name, compiled, seconds, time.monotonic() - start))
     return kernels
+
+
+def _next_answer(finished, stop, waiting):
+    """Return the next answer of ``finished`` (imap), or None once ``stop`` is set.
+
+    Polls every STOP_POLL_S, calling ``waiting()`` at each poll without an answer.
+    """
+    while not (stop is not None and stop.is_set()):
+        try:
+            return finished.next(timeout=STOP_POLL_S)
+        except multiprocessing.TimeoutError:
+            waiting()
+    return None
 
 
 def _compile_task(task):
