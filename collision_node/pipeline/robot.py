@@ -59,6 +59,7 @@ import numpy as np
 
 from collision_node.pipeline import meshes, urdf
 from collision_node.pipeline._jit import inlined_kernel, kernel
+from collision_node.pipeline.flat_views import view
 
 # Joint type codes in RobotModel.joint_types (continuous is revolute without limits).
 FIXED = 0
@@ -621,33 +622,48 @@ def box_rotation(model, rotations, b):
 
 @kernel
 def unpack_model(ints, floats):
-    """Return the RobotModel of :func:`pack_model`'s arrays, its fields views of them."""
+    """Return the RobotModel of :func:`pack_model`'s arrays, its fields views of them.
+
+    The arrays may hold more after the model (:func:`packed_sizes`).
+    """
     links, boxes, dof = ints[0], ints[1], ints[2]
     i = 3
-    order, parents = ints[i:i + links], ints[i + links:i + 2 * links]
-    joint_types, q_indices = ints[i + 2 * links:i + 3 * links], ints[i + 3 * links:i + 4 * links]
-    box_links = ints[i + 4 * links:i + 4 * links + boxes]
+    order, parents = view(ints, i, (links,)), view(ints, i + links, (links,))
+    joint_types = view(ints, i + 2 * links, (links,))
+    q_indices = view(ints, i + 3 * links, (links,))
+    box_links = view(ints, i + 4 * links, (boxes,))
     f = 0
-    origin_translations = floats[f:f + 3 * links].reshape((links, 3))
+    origin_translations = view(floats, f, (links, 3))
     f += 3 * links
-    origin_rotations = floats[f:f + 9 * links].reshape((links, 3, 3))
+    origin_rotations = view(floats, f, (links, 3, 3))
     f += 9 * links
-    axes = floats[f:f + 3 * links].reshape((links, 3))
+    axes = view(floats, f, (links, 3))
     f += 3 * links
-    multipliers, offsets = floats[f:f + links], floats[f + links:f + 2 * links]
+    multipliers, offsets = view(floats, f, (links,)), view(floats, f + links, (links,))
     f += 2 * links
-    joint_limits = floats[f:f + 2 * dof].reshape((dof, 2))
+    joint_limits = view(floats, f, (dof, 2))
     f += 2 * dof
-    box_translations = floats[f:f + 3 * boxes].reshape((boxes, 3))
+    box_translations = view(floats, f, (boxes, 3))
     f += 3 * boxes
-    box_rotations = floats[f:f + 9 * boxes].reshape((boxes, 3, 3))
+    box_rotations = view(floats, f, (boxes, 3, 3))
     f += 9 * boxes
-    half_extents = floats[f:f + 3 * boxes].reshape((boxes, 3))
+    half_extents = view(floats, f, (boxes, 3))
     f += 3 * boxes
-    motion_radii = floats[f:f + boxes * dof].reshape((boxes, dof))
+    motion_radii = view(floats, f, (boxes, dof))
     return RobotModel(order, parents, origin_translations, origin_rotations, joint_types, axes,
                       q_indices, multipliers, offsets, joint_limits, box_links,
                       box_translations, box_rotations, half_extents, motion_radii)
+
+
+@inlined_kernel
+def packed_sizes(ints):
+    """Return the lengths (ints, floats) of the model :func:`pack_model` packed at their start.
+
+    A kernel handed arrays that begin with a packed model (and hold more after it) finds what
+    follows the model here.
+    """
+    links, boxes, dof = ints[0], ints[1], ints[2]
+    return 3 + 4 * links + boxes, 17 * links + 2 * dof + (15 + dof) * boxes
 
 
 @inlined_kernel

@@ -25,23 +25,28 @@ leave out, ``candidate_pairs`` the listed pairs the culls left and ``sat_tests``
 run on them.
 
 Cost (the Panda over a table, a wall and a shelf: 95 listed pairs, about 6 left by the culls):
-the forward kinematics is a third of a state, the culls a third, the SAT the rest. Arguments
-are few and flat (robot.pack_model; the rows and scratch one workspace of two arrays, made
-once per scene version): numba unboxes each array argument on every call (a tuple costs
-several), and a call that allocated its rows and scratch spent more setting up than checking
-one state.
+the forward kinematics is a third of a state, the culls a third, the SAT the rest. For one
+state per call, entering and setting up the call cost as much as the state, so the kernel
+takes one workspace of two flat arrays (:func:`_workspace`, made once per scene version):
+the packed model (robot.pack_model), the base pose, the pairs and settings, the rows and the
+scratch. numba unboxes each array argument on every call (15 model arrays cost 2 µs, the
+workspace's two 0.3 µs), a call that allocated its rows and scratch spent more setting up
+than checking, and its parts are views (flat_views.view) made without numba's reshape.
 """
 import math
+import time
 
 import numpy as np
 
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE, STATIC, write_contact
+from collision_node.pipeline.flat_views import view
 from collision_node.pipeline.frames import matrix
 from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORDINATE,
                                          NON_FINITE_POSE, OUT_OF_RANGE, TIE_ULPS, VALID)
 from collision_node.pipeline.robot import (box_center, box_rotation, link_transforms,
-                                           quaternion_from_rotation, unpack_model)
+                                           packed_sizes, quaternion_from_rotation,
+                                           unpack_model)
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
 from collision_node.pipeline.stats import one_pass_stats, Result
@@ -53,6 +58,10 @@ STATIC_COLUMNS = 23
 ROW_FLOATS = 3 + 9 + 3 + 6 + 1 + 1
 # Entries of RobotRows.settings.
 MARGIN, PAD, HAS_MARGIN = range(3)
+# Floats of a workspace between the model and the rows: the base pose, the settings and the
+# culls' rounding bounds (the largest radius with a static margin and half extents, the
+# largest sum of a static centre's |coordinates|).
+BASE_POSE, SETTINGS, WIDEST, FARTHEST_STATIC, ROWS = 0, 7, 10, 11, 12
 # The "body" of a failed state whose q holds a NaN or Inf.
 NON_FINITE_JOINT = -2
 # check_robot_states' frames when they are not kept.
@@ -106,14 +115,14 @@ class RobotRows:
         self.all_pairs = count * (count - 1) // 2 + count * n_static
         self.filtered = self.all_pairs - len(j)  # pairs the filters leave out
         self.one_state = (bodies.robot.dof,)  # the shape of one state's q
-        # The pass's rows and scratch, one per chunk of states (Workers.map_ranges): made
-        # once per scene version, their static rows filled, so that a call allocates none.
-        self._workspaces = [_workspace(bodies.robot.half_extents, table, pad,
-                                       len(bodies.robot.model.parents), len(j))]
+        # The pass's arguments, rows and scratch in two arrays, one pair per chunk of states
+        # (Workers.map_ranges): made once per scene version, all but the scratch filled.
+        self._workspaces = [_workspace(*bodies.packed_model, bodies.base_pose, self.pairs,
+                                       self.keys, self.settings, table)]
 
     def result(self, contacts, passed, sat_tests, ms, states):
         """Return the Result of ``states`` states checked (``passed`` pairs, ``sat_tests``)."""
-        contacts.flags.writeable = False
+        contacts.setflags(write=False)
         return Result(contacts, one_pass_stats(
             self.bodies.count, self.n_static,
             (states * self.all_pairs, passed, states * self.filtered, sat_tests), ms, states))
@@ -124,6 +133,18 @@ class RobotRows:
             floats, ints = self._workspaces[0]
             self._workspaces.append((floats.copy(), ints.copy()))
 
+    def check_one(self, q, start):
+        """Return the Result of one state ``q`` (dof,), or None if it failed (:meth:`check`).
+
+        ``start``: the time.perf_counter() at which the check began, for its stats.
+        """
+        floats, ints = self._workspaces[0]
+        contacts, (passed, sat_tests), state, _, _, invalid = check_robot_states(
+            q[None], floats, ints, 0, 1, *NO_FRAMES)
+        if state >= 0 or invalid:
+            return None
+        return self.result(contacts, passed, sat_tests, 1e3 * (time.perf_counter() - start), 1)
+
     def check(self, states, first_state, stop_state, frames=None, chunk=0):
         """Return check_robot_states' answer for states ``[first_state, stop_state)``.
 
@@ -131,42 +152,32 @@ class RobotRows:
         state's link frames (a trajectory's segments start from them); None: not kept.
         ``chunk``: the workspace to use (:meth:`reserve`), one per chunk checked at once.
         """
-        model_ints, model_floats = self.bodies.packed_model
         floats, ints = self._workspaces[chunk]
         frame_rotations, frame_translations = NO_FRAMES if frames is None else frames
-        return check_robot_states(states, model_ints, model_floats, self.bodies.base_pose,
-                                  self.pairs, self.keys, self.settings, floats, ints,
-                                  first_state, stop_state, frame_rotations, frame_translations)
+        return check_robot_states(states, floats, ints, first_state, stop_state,
+                                  frame_rotations, frame_translations)
 
 
 @kernel
-def check_robot_states(states, model_ints, model_floats, base_pose, pairs, keys, settings,
-                       floats, ints, first_state, stop_state, frame_rotations,
+def check_robot_states(states, floats, ints, first_state, stop_state, frame_rotations,
                        frame_translations):
     """Check joint states ``[first_state, stop_state)`` of ``states`` (K, dof) (module docstring).
 
-    Arguments as RobotRows holds them; the model as robot.pack_model packs it; ``floats`` and
-    ``ints`` a workspace of :func:`_workspace`; each state's link frames are written to
+    ``floats`` and ``ints`` a workspace of :func:`_workspace` (the model, the pairs and
+    settings, the rows and scratch); each state's link frames are written to
     ``frame_rotations`` and ``frame_translations`` (RobotRows.check) unless they are empty. Returns
     (contacts with their state, (pairs the culls passed, SAT tests), first failed state
     or -1, its box (NON_FINITE_JOINT: its q), obb reason code, 1 if the SAT met NaN).
     """
-    model = unpack_model(model_ints, model_floats)
+    model = unpack_model(ints, floats)
     count = model.half_extents.shape[0]
+    (base_pose, settings, bounds, pairs, keys, centers, rotations, extents, aabbs, radii,
+     margins, link_rotations, link_translations, depth, normal, point, oriented,
+     candidates) = _views(floats, ints)
     pad = settings[PAD]
-    (centers, rotations, extents, aabbs, radii, margins, link_rotations, link_translations,
-     depth, normal, point, oriented, candidates) = _views(floats, ints, count,
-                                                          model.parents.shape[0], len(pairs))
     # The rounding the culls allow: one bound per state on what obb.spheres_apart allows each
     # pair (64 ulps of the radii, extents and coordinates), so that a cull is a few flops.
-    widest = 0.0  # the largest radius or static box's margin, half extents and radius
-    farthest_static = 0.0  # the largest sum of a static centre's |coordinates|
-    for row in range(len(radii)):
-        widest = max(widest, radii[row] + margins[row] + extents[row, 0] + extents[row, 1]
-                     + extents[row, 2])
-        if row >= count:
-            farthest_static = max(farthest_static, abs(centers[row, 0]) + abs(centers[row, 1])
-                                  + abs(centers[row, 2]))
+    widest, farthest_static = bounds[0], bounds[1]
     oriented[:] = -1  # the state each box was last oriented for
     most = len(pairs)
     status = np.empty(most, np.int8)
@@ -249,21 +260,36 @@ def _failed(state, box, code, invalid):
 
 
 @kernel
-def _workspace(half_extents, static_boxes, pad, links, most):
+def _workspace(model_ints, model_floats, base_pose, pairs, keys, settings, static_boxes):
     """Return a workspace (floats, ints) of the pass, laid out as :func:`_views` reads it.
 
-    Its rows: B robot rows (placed per state), then the static rows as sat.collide_pair_rows
-    reads them, filled here; the robot's radii padded as the one pass pads its bodies', their
-    margins 0. Then scratch: the link frames, the SAT's outputs, its candidate pairs.
+    numba unboxes each array argument on every call: a state's check reads every fixed
+    argument from these two. The ints: the packed model (robot.pack_model), the pair and
+    static counts, the pairs and their keys, then scratch. The floats: the packed model, the
+    base pose, the settings, the culls' rounding bounds, then B robot rows (placed per state)
+    and the static rows as sat.collide_pair_rows reads them, filled here (the robot's radii
+    padded as the one pass pads its bodies', their margins 0), then scratch: the link frames
+    and the SAT's outputs.
     """
-    count, n_static = half_extents.shape[0], static_boxes.shape[0]
+    model = unpack_model(model_ints, model_floats)
+    count, n_static = model.half_extents.shape[0], static_boxes.shape[0]
+    links, most = model.parents.shape[0], pairs.shape[0]
     rows = count + n_static
-    floats = np.zeros(rows * ROW_FLOATS + links * 12 + most * 7)
-    ints = np.zeros(count + most * 3, np.int64)
-    centers, rotations, extents, aabbs, radii, margins = _views(floats, ints, count, links,
-                                                                most)[:6]
+    model_int_count, model_float_count = packed_sizes(model_ints)
+    floats = np.zeros(model_float_count + ROWS + rows * ROW_FLOATS + links * 12 + most * 7)
+    ints = np.zeros(model_int_count + 2 + most * 5 + count + most * 3, np.int64)
+    floats[:model_float_count] = model_floats
+    ints[:model_int_count] = model_ints
+    ints[model_int_count], ints[model_int_count + 1] = most, n_static
+    (view_pose, view_settings, bounds, view_pairs, view_keys, centers, rotations, extents,
+     aabbs, radii, margins) = _views(floats, ints)[:11]
+    view_pose[:] = base_pose
+    view_settings[:] = settings
+    view_pairs[:] = pairs
+    view_keys[:] = keys
+    pad = settings[PAD]
     for b in range(count):
-        h = half_extents[b]
+        h = model.half_extents[b]
         extents[b] = h
         radii[b] = math.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]) + pad
     for s in range(n_static):
@@ -277,42 +303,60 @@ def _workspace(half_extents, static_boxes, pad, links, most):
                 rotations[row, m, n] = box[ROTATION + 3 * m + n]
         radii[row] = box[RADIUS]
         margins[row] = box[OWN_MARGIN]
+    for row in range(rows):
+        bounds[0] = max(bounds[0], radii[row] + margins[row] + extents[row, 0]
+                        + extents[row, 1] + extents[row, 2])
+        if row >= count:
+            bounds[1] = max(bounds[1], abs(centers[row, 0]) + abs(centers[row, 1])
+                            + abs(centers[row, 2]))
     return floats, ints
 
 
 @inlined_kernel
-def _views(floats, ints, count, links, most):
+def _views(floats, ints):
     """Return the parts of a workspace (:func:`_workspace`), views of its two arrays.
 
-    (centers, rotations, extents, aabbs, radii, margins) of every row, the link frames
-    (rotations, translations), the SAT's (depth, normal, point) per candidate, then the state
-    each robot box was last oriented for and the candidates (their rows, their pair).
+    The base pose, the settings, the culls' bounds (widest, farthest static), the pairs and
+    their keys; (centers, rotations, extents, aabbs, radii, margins) of every row, the link
+    frames (rotations, translations), the SAT's (depth, normal, point) per candidate, then the
+    state each robot box was last oriented for and the candidates (their rows, their pair).
     """
-    rows = (floats.shape[0] - links * 12 - most * 7) // ROW_FLOATS
-    at = 0
-    centers = floats[at:at + rows * 3].reshape((rows, 3))
+    at_int, at = packed_sizes(ints)
+    count, links = ints[1], ints[0]
+    most, n_static = ints[at_int], ints[at_int + 1]
+    rows = count + n_static
+    at_int += 2
+    pairs = view(ints, at_int, (most, 2))
+    at_int += most * 2
+    keys = view(ints, at_int, (most, 3))
+    at_int += most * 3
+    oriented = view(ints, at_int, (count,))
+    candidates = view(ints, at_int + count, (most, 3))
+    base_pose = view(floats, at + BASE_POSE, (SETTINGS - BASE_POSE,))
+    settings = view(floats, at + SETTINGS, (WIDEST - SETTINGS,))
+    bounds = view(floats, at + WIDEST, (ROWS - WIDEST,))
+    at += ROWS
+    centers = view(floats, at, (rows, 3))
     at += rows * 3
-    rotations = floats[at:at + rows * 9].reshape((rows, 3, 3))
+    rotations = view(floats, at, (rows, 3, 3))
     at += rows * 9
-    extents = floats[at:at + rows * 3].reshape((rows, 3))
+    extents = view(floats, at, (rows, 3))
     at += rows * 3
-    aabbs = floats[at:at + rows * 6].reshape((rows, 2, 3))
+    aabbs = view(floats, at, (rows, 2, 3))
     at += rows * 6
-    radii, margins = floats[at:at + rows], floats[at + rows:at + 2 * rows]
+    radii, margins = view(floats, at, (rows,)), view(floats, at + rows, (rows,))
     at += 2 * rows
-    link_rotations = floats[at:at + links * 9].reshape((links, 3, 3))
+    link_rotations = view(floats, at, (links, 3, 3))
     at += links * 9
-    link_translations = floats[at:at + links * 3].reshape((links, 3))
+    link_translations = view(floats, at, (links, 3))
     at += links * 3
-    depth = floats[at:at + most]
+    depth = view(floats, at, (most,))
     at += most
-    normal = floats[at:at + most * 3].reshape((most, 3))
-    at += most * 3
-    point = floats[at:at + most * 3].reshape((most, 3))
-    oriented = ints[:count]
-    candidates = ints[count:count + most * 3].reshape((most, 3))
-    return (centers, rotations, extents, aabbs, radii, margins, link_rotations,
-            link_translations, depth, normal, point, oriented, candidates)
+    normal = view(floats, at, (most, 3))
+    point = view(floats, at + most * 3, (most, 3))
+    return (base_pose, settings, bounds, pairs, keys, centers, rotations, extents, aabbs,
+            radii, margins, link_rotations, link_translations, depth, normal, point, oriented,
+            candidates)
 
 
 @kernel

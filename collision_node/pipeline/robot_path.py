@@ -21,6 +21,8 @@ from collision_node.pipeline.robot_bodies import (DEFAULT_RESOLUTION, first_uncl
 from collision_node.pipeline.robot_pass import NON_FINITE_JOINT, RobotRows
 from collision_node.pipeline.stats import Result
 
+FLOAT64 = np.dtype(np.float64)
+
 
 class RobotPath:
     """A robot at a base pose, checked against the scene rows (module docstring)."""
@@ -46,16 +48,18 @@ class RobotPath:
         rows = self._rows
         if rows is None or rows.version != self._scene.version or rows.bodies is not self.bodies:
             rows = self._robot_rows(self._robot_bodies())
-        robot = rows.bodies.robot
-        # One state as a planner hands it goes in as it is (the pass checks its values): the
-        # Python around the pass costs more than the pass itself.
-        if type(q) is np.ndarray and q.shape == rows.one_state and q.dtype == np.float64 \
-                and q.flags.c_contiguous and q.flags.writeable:
-            states = q.reshape(1, -1)
-        else:
-            states = robot._states(q)
-        if rows.all_pairs > one_pass_pairs:
-            return self._batches.check(rows.bodies.poses(states), robot.half_extents,
+        small = rows.all_pairs <= one_pass_pairs
+        # One state as a planner hands it goes in as it is, with no more Python than the pass
+        # needs: for a robot's few boxes, the Python around the pass costs as much as the pass.
+        # A state that fails is checked again the full way below, which says why.
+        if type(q) is np.ndarray and q.shape == rows.one_state and q.dtype is FLOAT64 \
+                and q.flags.carray and small and frames is None:
+            result = rows.check_one(q, start)
+            if result is not None:
+                return result
+        states = rows.bodies.robot._states(q)
+        if not small:
+            return self._batches.check(rows.bodies.poses(states), rows.bodies.robot.half_extents,
                                        one_pass_pairs)
         if len(states) == 1:
             parts = [rows.check(states, 0, 1, frames)]
@@ -71,7 +75,7 @@ class RobotPath:
                 raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
             if state >= 0:
                 if box == NON_FINITE_JOINT:
-                    robot._states(states[state])  # raises, naming the joint
+                    rows.bodies.robot._states(states[state])  # raises, naming the joint
                 raise ValueError('state %d: dynamic body %d: %s' % (state, box, REASONS[code]))
             passed += part_passed
             sat_tests += part_sat_tests
