@@ -577,6 +577,29 @@ def test_pair_motion_radii_bound_every_corner_relative_to_the_common_ancestor(
             assert (moved <= bound[:, p] * (1 + 1e-9) + 1e-12).all(), (name, a, b)
 
 
+@pytest.mark.parametrize('name', ['own', *sorted(REFERENCE_ROBOTS)])
+def test_center_spheres_and_gaps_hold_at_any_joint_values(name, own, ament_prefix):
+    """The reach reads no limits: it holds for angles far outside them too."""
+    robot = own[0] if name == 'own' else reference_robot(name)
+    boxes = np.arange(len(robot.box_links))
+    base = np.array([0.3, -0.2, 0.1, 0.1, 0.2, 0.3, 0.9273618])
+    base[3:] /= np.linalg.norm(base[3:])
+    centres, reaches = robot.center_spheres(boxes, np.full(len(boxes), -1), base)
+    assert np.isfinite(reaches).any() and (reaches >= 0.0).all()
+    pairs = robot.allowed_box_pairs
+    gaps = robot.center_gaps(pairs[:, 0], pairs[:, 1])
+    np.testing.assert_array_equal(gaps, robot.center_gaps(pairs[:, 0], pairs[:, 1]))  # kept
+    rng = np.random.default_rng(13)
+    limits = np.nan_to_num(robot.joint_limits, posinf=3.0, neginf=-3.0)
+    states = rng.uniform(limits[:, 0] - 6.0, limits[:, 1] + 6.0, (300, robot.dof))
+    frame = matrix(base)
+    for poses in robot.box_poses(states):
+        placed = poses[:, :3] @ frame[:3, :3].T + frame[:3, 3]
+        assert (np.linalg.norm(placed - centres, axis=1) <= reaches + 1e-12).all(), name
+        apart = np.linalg.norm(poses[pairs[:, 0], :3] - poses[pairs[:, 1], :3], axis=1)
+        assert (apart >= gaps - 1e-12).all(), name
+
+
 def test_a_robot_without_joints_has_no_motion_and_its_path_is_its_pose():
     from collision_node import World
     robot = Robot.from_urdf('<robot name="post"><link name="base"><collision><geometry>'

@@ -106,6 +106,46 @@ def test_a_static_box_touching_a_face_or_corner_to_the_last_bit_is_answered_as_s
         assert len(touching) >= np.count_nonzero(offsets < 0.0)
 
 
+ARM = ('<robot name="arm"><link name="base"/><link name="arm"><collision>'
+       '<origin xyz="1 0 0"/><geometry><box size="0.2 0.2 0.2"/></geometry></collision></link>'
+       '<joint name="turn" type="continuous"><parent link="base"/><child link="arm"/>'
+       '<axis xyz="0 0 1"/></joint></robot>')
+
+
+@pytest.mark.parametrize('x, listed', [(1.19, True), (1.25, True), (1.30, False)])
+def test_a_static_box_out_of_reach_at_any_angle_is_left_out(x, listed):
+    """The arm's box centre stays 1 m from the joint: its sphere (0.173 m) reaches 1.173 m.
+
+    A static box of half width 0.1 at x is culled at every angle once x - 0.1 > 1.173.
+    """
+    from collision_node import Robot
+    robot = Robot.from_urdf(ARM)
+    world = World()
+    world.set_static([[x, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]], [[0.1, 0.1, 0.1]])
+    world.set_robot(robot)
+    rows = world.robot_pass()
+    assert len(rows.pairs) == int(listed) and rows.all_pairs == 1 and rows.filtered == 0
+    states = np.linspace(-np.pi, np.pi, 721)[:, None]  # state 360: angle 0
+    contacts = world.check_joints(states).contacts
+    assert_as_step(world, robot, states, contacts)
+    assert (360 in contacts['state']) == (x < 1.2)  # at angle 0 the boxes overlap below 1.2
+
+
+def test_panda_pairs_out_of_reach_are_left_out_and_answers_stay_steps(panda):
+    world = World(margin=0.01)
+    far = [[2.5, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0]]  # beyond the Panda's reach
+    world.set_static(STATIC_POSES + far, STATIC_HALF_EXTENTS + [[0.1, 0.1, 0.1]])
+    world.set_robot(panda)
+    rows = world.robot_pass()
+    listed = {tuple(key) for key in rows.keys.tolist()}
+    fingers = {box for box, link in enumerate(panda.box_links) if 'finger' in link}
+    far_pairs = {key[0] for key in listed if key[1:] == (1, 3)}
+    assert far_pairs == fingers  # sliding fingers have no fixed point: their pairs stay
+    assert (0, 1, 1) in listed  # the base box and the table it stands on
+    states = random_states(panda, 400, seed=8)
+    assert_as_step(world, panda, states, world.check_joints(states).contacts)
+
+
 def test_ignored_pairs_and_masks_leave_the_same_pairs_out(panda):
     world = World()
     world.set_static(STATIC_POSES, STATIC_HALF_EXTENTS)

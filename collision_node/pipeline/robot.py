@@ -24,6 +24,15 @@ Geometry. Every ``<collision>`` element is one box, in document order: a ``box``
 vertices' axis-aligned box (collision_node.pipeline.meshes). ``box_volume_ratio`` is box
 volume / shape volume: for a mesh, over the volume the mesh encloses (NaN for an open mesh).
 
+Reach (``center_spheres``). A box's centre stays within a fixed distance of the origin of the
+topmost turning joint on its chain, whatever the angles: that origin is fixed relative to
+the link above it, and walking up from the box, the distance bound grows by each joint
+origin's |xyz| (a turn keeps distances from its axis's origin). No limits are read, so the
+bound holds for any q a caller passes; a sliding joint on the chain moves its link's origin
+and gives no bound. Seen from two boxes' nearest common ancestor (or from the root, for a
+static box), a pair whose spheres stay apart by more than the culls' reach can never be
+tested, and the robot's pass leaves it out of its list (robot_pass.RobotRows).
+
 Self-collision filter (MoveIt's rules). Two boxes are not tested when they belong to one
 link, when their links are adjacent, or when the SRDF disables the pair. Adjacent: the tree
 path between the two links has no link with collision geometry inside it (one joint apart,
@@ -143,6 +152,7 @@ class Robot:
         self.joint_limits = model.joint_limits
         self.allowed_box_pairs = _allowed_box_pairs(self.box_links, disabled_link_pairs)
         self._travels = travels  # per link: the largest |value| of its prismatic joint
+        self._center_gaps = {}  # (box a, box b): center_gaps, once asked
 
     @classmethod
     def from_urdf(cls, urdf_source, srdf=None, package_paths=()):
@@ -226,6 +236,45 @@ class Robot:
             radii[p] = _chain_radii(model, self._travels, a, above) \
                 + _chain_radii(model, self._travels, b, above)
         return radii
+
+    def center_spheres(self, first, above, base_pose=IDENTITY_POSE):
+        """Return (centres (P, 3), reaches (P,)): where box ``first[p]``'s centre can be.
+
+        For every joint value (limits or not), the centre lies within ``reaches[p]`` of
+        ``centres[p]``, a point fixed relative to link ``above[p]`` (NO_INDEX: the root), given
+        at q = 0 in the frame the root link is at ``base_pose`` in (module docstring, Reach).
+        """
+        model, frames = self.model, self._zero_frames(base_pose)
+        spheres = [_center_sphere(model, frames, box, link) for box, link in zip(first, above)]
+        return (np.array([sphere[0] for sphere in spheres]).reshape(-1, 3),
+                np.array([sphere[1] for sphere in spheres]))
+
+    def center_gaps(self, first, second):
+        """Return (P,): a lower bound on the distance between two boxes' centres, every q.
+
+        Boxes ``first[p]`` and ``second[p]`` of the robot, seen from their links' nearest
+        common ancestor: the distance between their spheres (:meth:`center_spheres`). Kept
+        per pair: a scene's every version asks again.
+        """
+        parents, box_links = self.model.parents, self.model.box_links
+        pairs = list(zip(np.asarray(first).tolist(), np.asarray(second).tolist()))
+        new = [pair for pair in dict.fromkeys(pairs) if pair not in self._center_gaps]
+        if new:
+            a, b = np.array(new, np.int64).reshape(-1, 2).T
+            above = [_common_ancestor(parents, box_links[i], box_links[j]) for i, j in new]
+            centres_a, reaches_a = self.center_spheres(a, above)
+            centres_b, reaches_b = self.center_spheres(b, above)
+            gaps = np.linalg.norm(centres_a - centres_b, axis=1) - reaches_a - reaches_b
+            self._center_gaps.update(zip(new, gaps.tolist()))
+        return np.array([self._center_gaps[pair] for pair in pairs])
+
+    def _zero_frames(self, base_pose):
+        """Return the link frames (rotations, translations) at q = 0, the root at ``base_pose``."""
+        count = len(self.link_names)
+        rotations, translations = np.empty((count, 3, 3)), np.empty((count, 3))
+        link_transforms(self.model, np.asarray(base_pose, np.float64), np.zeros(self.dof),
+                        rotations, translations)
+        return rotations, translations
 
     @property
     def dof(self):
@@ -432,6 +481,25 @@ def _chain_radii(model, travels, box, above):
         reach += np.linalg.norm(model.origin_translations[link]) + travels[link]
         link = model.parents[link]
     return radii
+
+
+def _center_sphere(model, frames, box, above):
+    """Return (centre, reach) of :meth:`Robot.center_spheres` for one box (module docstring)."""
+    rotations, translations = frames
+    link = model.box_links[box]
+    centre = translations[link] + rotations[link] @ model.box_translations[box]
+    reach = 0.0
+    # Walking up: ``walked`` bounds the box centre's distance from the current link's origin.
+    walked = np.linalg.norm(model.box_translations[box])
+    while link != above and model.parents[link] != NO_INDEX:
+        kind = model.joint_types[link]
+        if kind == PRISMATIC:  # its link's origin slides: no fixed point bounds the box
+            return centre, math.inf
+        if kind == REVOLUTE:  # its link's origin is fixed relative to the parent link
+            centre, reach = translations[link], walked
+        walked += np.linalg.norm(model.origin_translations[link])
+        link = model.parents[link]
+    return centre, reach
 
 
 def _disabled_link_pairs(links, joint_of, geometric, rules):

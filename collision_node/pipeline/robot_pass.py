@@ -45,7 +45,7 @@ from collision_node.pipeline.frames import matrix
 from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORDINATE,
                                          NON_FINITE_POSE, OUT_OF_RANGE, TIE_ULPS, VALID)
 from collision_node.pipeline.robot import (box_center, box_rotation, link_transforms,
-                                           packed_sizes, quaternion_from_rotation,
+                                           NO_INDEX, packed_sizes, quaternion_from_rotation,
                                            unpack_model)
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
@@ -83,22 +83,7 @@ class RobotRows:
         """Gather what ``bodies`` (robot_bodies.RobotBodies) are checked against in ``scene``."""
         count, statics = bodies.count, scene.rows.by_id
         self.version, self.bodies = scene.version, bodies
-        a, j = np.nonzero(np.triu(scene.filter_table(count), 1))  # the pass's order
-        static = j >= count
-        rows, types, ids = j.copy(), np.full(len(j), DYNAMIC, np.int64), j.copy()
-        rows[static] = count + statics[j[static] - count, STATICS_ROW]
-        ids[static] = statics[j[static] - count, STATICS_ID]
-        types[static] = STATIC
-        self.pairs = np.column_stack([a, rows]).astype(np.int64)
-        self.keys = np.column_stack([a, types, ids]).astype(np.int64)
-        self.margins = np.full(len(j), scene.options.margin)
-        boxes = scene.boxes
-        n_static = scene.count
-        if scene.rows.own_margins:
-            self.margins[static] += boxes.margins[rows[static] - count]
-        self.motion_radii = bodies.robot.pair_motion_radii(a, np.where(static, -1, j))
-        self.boxes = tuple(np.concatenate([np.zeros((count,) + part.shape[1:]), part[:n_static]])
-                           for part in (boxes.centers, boxes.rotations, boxes.half_extents))
+        boxes, n_static = scene.boxes, scene.count
         # The static rows padded as the one pass reads them (scene_rows.SceneRows.pass_rows).
         padded = scene.pass_rows(0)
         table = np.empty((n_static, STATIC_COLUMNS))
@@ -111,9 +96,26 @@ class RobotRows:
         margin, pad = scene.pass_options(count)[:2]
         self.settings = np.array([0.0 if margin is None else margin, pad,
                                   0.0 if margin is None else 1.0])
+        a, j = np.nonzero(np.triu(scene.filter_table(count), 1))  # the pass's order
+        self.filtered = count * (count - 1) // 2 + count * n_static - len(j)  # filters' pairs
+        static = j >= count
+        rows, types, ids = j.copy(), np.full(len(j), DYNAMIC, np.int64), j.copy()
+        rows[static] = count + statics[j[static] - count, STATICS_ROW]
+        ids[static] = statics[j[static] - count, STATICS_ID]
+        types[static] = STATIC
+        near = _may_come_near(bodies, a, rows, table, pad)
+        a, j, rows, types, ids, static = a[near], j[near], rows[near], types[near], ids[near], \
+            static[near]
+        self.pairs = np.column_stack([a, rows]).astype(np.int64)
+        self.keys = np.column_stack([a, types, ids]).astype(np.int64)
+        self.margins = np.full(len(j), scene.options.margin)
+        if scene.rows.own_margins:
+            self.margins[static] += boxes.margins[rows[static] - count]
+        self.motion_radii = bodies.robot.pair_motion_radii(a, np.where(static, -1, j))
+        self.boxes = tuple(np.concatenate([np.zeros((count,) + part.shape[1:]), part[:n_static]])
+                           for part in (boxes.centers, boxes.rotations, boxes.half_extents))
         self.n_static = n_static
         self.all_pairs = count * (count - 1) // 2 + count * n_static
-        self.filtered = self.all_pairs - len(j)  # pairs the filters leave out
         self.one_state = (bodies.robot.dof,)  # the shape of one state's q
         # The pass's arguments, rows and scratch in two arrays, one pair per chunk of states
         # (Workers.map_ranges): made once per scene version, all but the scratch filled.
@@ -156,6 +158,43 @@ class RobotRows:
         frame_rotations, frame_translations = NO_FRAMES if frames is None else frames
         return check_robot_states(states, floats, ints, first_state, stop_state,
                                   frame_rotations, frame_translations)
+
+
+def _may_come_near(bodies, a, rows, table, pad):
+    """Return which pairs (box a, row: a robot box, or B + a static row) the culls may pass.
+
+    A pair the robot's reach keeps apart for every q (robot.Robot.center_spheres) is culled
+    in every state: it is left out of the list. Kept: a pair whose bound is within the
+    culls' reach (the robot's radii padded as :func:`_workspace` pads them; for a static
+    box, the padded row of ``table`` and its own margin) and a slack far above the rounding
+    of either computation.
+    """
+    robot, count = bodies.robot, bodies.count
+    radii = np.linalg.norm(robot.half_extents, axis=1) + pad
+    near = np.ones(len(a), np.bool_)
+    mutual = np.flatnonzero(rows < count)
+    if len(mutual):
+        gaps = robot.center_gaps(a[mutual], rows[mutual])
+        near[mutual] = gaps <= radii[a[mutual]] + radii[rows[mutual]] + _slack(gaps)
+    static = np.flatnonzero(rows >= count)
+    if len(static):
+        centres, reaches = robot.center_spheres(np.arange(count), np.full(count, NO_INDEX),
+                                                bodies.base_pose)
+        centres, reaches = centres[a[static]], reaches[a[static]]
+        boxes = table[rows[static] - count]
+        rotations = boxes[:, ROTATION:EXTENTS].reshape(-1, 3, 3)
+        offsets = centres - boxes[:, CENTER:ROTATION]
+        local = np.einsum('pji,pj->pi', rotations, offsets)  # in the static box's frame
+        outside = np.maximum(np.abs(local) - boxes[:, EXTENTS:LOW], 0.0)
+        gaps = np.linalg.norm(outside, axis=1) - reaches
+        scale = np.abs(centres).sum(axis=1) + np.abs(offsets).sum(axis=1) + np.abs(gaps)
+        near[static] = gaps <= radii[a[static]] + pad + boxes[:, OWN_MARGIN] + _slack(scale)
+    return near
+
+
+def _slack(scale):
+    """Return the allowance for rounding of a bound of magnitude ``scale``: far above it."""
+    return 1e-9 * (1.0 + np.abs(scale))
 
 
 @kernel
