@@ -129,6 +129,8 @@ def test_a_static_box_out_of_reach_at_any_angle_is_left_out(x, listed):
     contacts = world.check_joints(states).contacts
     assert_as_step(world, robot, states, contacts)
     assert (360 in contacts['state']) == (x < 1.2)  # at angle 0 the boxes overlap below 1.2
+    path = world.check_trajectory(states[::60]).contacts  # every 30 degrees, through 0
+    assert (len(path) > 0) == (x < 1.2) and (x > 1.2 or 6 in path['state'])
 
 
 def test_panda_pairs_out_of_reach_are_left_out_and_answers_stay_steps(panda):

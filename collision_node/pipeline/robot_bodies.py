@@ -94,7 +94,7 @@ def segment_contacts(world, bodies, waypoints, exact, found, keys):
     """
     at_waypoints = exact.copy()
     at_waypoints['toi'] = 0.0  # check_states marks a discrete contact at the step's end, 1
-    if not len(found) or found.max() < 0.0:  # a free path's: sorted, as check_states sorts
+    if not found.size or found.max() < 0.0:  # a free path's: sorted, as check_states sorts
         return at_waypoints
     segment, pair = np.nonzero(found >= 0)
     toi = found[segment, pair]
