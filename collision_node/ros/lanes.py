@@ -27,6 +27,7 @@ import numpy as np
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.ros.cdr import (CDR_LE, ENCAPSULATION_SIZE, MAX_JOINT_STATE_TRAILING_BYTES,
                                     MAX_TRAILING_BYTES, POSE_FIELDS, PoseArrayView)
+from collision_node.ros.messages import compile_writer
 
 # Body offset of the frame_id's length: the layout a lane compares starts there.
 FRAME_ID_AT = 8
@@ -120,8 +121,13 @@ class JointLane:
         return None if state >= 0 or invalid else (contacts, passed, sat_tests, sec, nanosec)
 
 
-def compile_lanes():
-    """Compile the lanes' kernels, or load them from numba's cache."""
+def compile_ros_kernels():
+    """Compile the ROS layer's own kernels (the lanes' and the clouds' writer), or load them.
+
+    The node runs it before it subscribes, and collision_node.tools.compile_kernels into
+    numba's cache beforehand: one list, so that neither can miss a kernel the other has.
+    """
+    compile_writer()
     _read_poses(NO_MESSAGE, NO_LAYOUT, 1)
     no_joints = np.zeros(0, np.int64)
     _merge_joints(NO_MESSAGE, NO_LAYOUT, 1, no_joints, no_joints, np.zeros(1),

@@ -88,11 +88,11 @@ from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import parse_joint_state, parse_pose_array
 from collision_node.ros.joints import JointValues
-from collision_node.ros.lanes import compile_lanes, JointLane, PoseLane
+from collision_node.ros.lanes import compile_ros_kernels, JointLane, PoseLane
 from collision_node.ros.lifetime import InitError, RosProgram
 from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.memory import keep_heap_memory
-from collision_node.ros.messages import CloudWriter, compile_writer
+from collision_node.ros.messages import CloudWriter
 
 # Newest input wins (doc/design.md, "Topics"); reliable, because Fast DDS delivers nothing
 # best-effort once a PoseArray passes ~512 KB. Overridable through the qos_overrides.*
@@ -293,8 +293,7 @@ class CollisionNode(LifecycleNode):
         with compile_progress(self.get_logger().info) as progress:
             warm_up_like(world, config.dynamic_half_extents,
                          robot if config.robot_description else None)
-            compile_writer()
-            compile_lanes()
+            compile_ros_kernels()
         self._background_warm_up = warm_up_in_background(progress.compiled > 0,
                                                          self.get_logger().info)
         self._cloud_writer = CloudWriter()

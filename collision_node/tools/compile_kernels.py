@@ -15,8 +15,7 @@ import sys
 import time
 
 from collision_node.pipeline.warm_up import compile_in_processes, SECTIONS
-from collision_node.ros.lanes import compile_lanes
-from collision_node.ros.messages import compile_writer
+from collision_node.ros.lanes import compile_ros_kernels
 
 
 def main(args=None):
@@ -30,14 +29,8 @@ def main(args=None):
           % (len(SECTIONS) + 1, processes), flush=True)
     kernels = compile_in_processes(processes=processes,
                                    report=lambda line: print(line, flush=True),
-                                   first=[('clouds and lanes', clouds_and_lanes)])
+                                   first=[('clouds and lanes', compile_ros_kernels)])
     print('compiled %d kernels in %.0f s' % (kernels, time.monotonic() - start), flush=True)
-
-
-def clouds_and_lanes():
-    """Compile the clouds' writer and the lanes' kernels (the ROS layer's own)."""
-    compile_writer()
-    compile_lanes()
 
 
 if __name__ == '__main__':
