@@ -2,7 +2,8 @@
 
 A robot's boxes are few, and which of their pairs are tested is known before any state: its
 self-collision filter and the World's filters leave a fixed list of pairs (:class:`RobotRows`,
-in the cloud's order). So this pass does not pair the boxes as the one pass does (every pair's
+in the cloud's order), less the pairs the robot's reach keeps apart at any joint values
+(:func:`_may_come_near`). So this pass does not pair the boxes as the one pass does (every pair's
 AABBs, then the filter table). Per state it
 
 1. runs the forward kinematics to the link frames (robot.link_transforms) and places each
@@ -24,7 +25,7 @@ differ: ``compared`` counts every pair of a state, ``filtered_pairs`` those the 
 leave out, ``candidate_pairs`` the listed pairs the culls left and ``sat_tests`` the SATs
 run on them.
 
-Cost (the Panda over a table, a wall and a shelf: 95 listed pairs, about 6 left by the culls):
+Cost (the Panda over a table, a wall and a shelf: 86 listed pairs, about 6 left by the culls):
 the forward kinematics is a third of a state, the culls a third, the SAT the rest. For one
 state per call, entering and setting up the call cost as much as the state, so the kernel
 takes one workspace of two flat arrays (:func:`_workspace`, made once per scene version):
