@@ -600,6 +600,33 @@ def test_center_spheres_and_gaps_hold_at_any_joint_values(name, own, ament_prefi
         assert (apart >= gaps - 1e-12).all(), name
 
 
+@pytest.mark.parametrize('name', sorted(REFERENCE_ROBOTS))
+def test_the_pass_without_pairs_out_of_reach_answers_as_step_beyond_the_limits(
+        name, ament_prefix):
+    """Static boxes strewn near and far: the pairs left out never change an answer."""
+    from collision_node import World
+    robot = reference_robot(name)
+    rng = np.random.default_rng(14)
+    turns = rng.normal(size=(60, 4))
+    poses = np.column_stack([rng.uniform(-2.0, 2.0, (60, 3)),
+                             turns / np.linalg.norm(turns, axis=1, keepdims=True)])
+    world = World(margin=0.01)
+    world.set_static(poses, rng.uniform(0.02, 0.25, (60, 3)))
+    world.set_robot(robot)
+    rows = world.robot_pass()
+    assert 0 < len(rows.pairs) < rows.all_pairs - rows.filtered  # some left out, not all
+    limits = np.clip(robot.joint_limits, -UNLIMITED_RANGE, UNLIMITED_RANGE)
+    states = rng.uniform(limits[:, 0] - 2.0, limits[:, 1] + 2.0, (300, robot.dof))
+    contacts = world.check_joints(states).contacts
+    assert len(contacts)
+    for k, box_poses in enumerate(world.robot_poses(states)):
+        step = world.step(box_poses, robot.half_extents).contacts
+        mine = contacts[contacts['state'] == k]
+        assert len(mine) == len(step), (name, k)
+        for field in step.dtype.names:
+            np.testing.assert_array_equal(mine[field], step[field], err_msg=field)
+
+
 def test_a_robot_without_joints_has_no_motion_and_its_path_is_its_pose():
     from collision_node import World
     robot = Robot.from_urdf('<robot name="post"><link name="base"><collision><geometry>'
