@@ -67,12 +67,30 @@ class OnePass:
                 or gathered.last_poses.shape != poses.shape \
                 or gathered.half_extents_shape != half_extents.shape:
             gathered = self.gathered = self._gather(len(poses), extents, half_extents.shape)
-        return self.step_again(poses, extents, gathered, start)
+        return self._step_gathered(poses, extents, gathered, start)
 
-    def step_again(self, poses, half_extents, gathered, start):
+    def step_as_before(self, poses, half_extents, start):
+        """Check as :meth:`step` if the input is as the last one was, else return None.
+
+        As before: the scene rows at the same version, the poses and half extents writable
+        C-contiguous float64 arrays of the last step's shapes (a robot's tick). Then nothing
+        is converted or gathered again: World.step tries this first.
+        """
+        gathered = self.gathered
+        if gathered is not None and gathered.version == self._scene.version \
+                and type(poses) is np.ndarray and poses.shape == gathered.last_poses.shape \
+                and type(half_extents) is np.ndarray \
+                and half_extents.shape == gathered.half_extents_shape \
+                and poses.dtype == half_extents.dtype == np.float64 \
+                and poses.flags.c_contiguous and half_extents.flags.c_contiguous \
+                and poses.flags.writeable and half_extents.flags.writeable:
+            return self._step_gathered(poses, half_extents, gathered, start)
+        return None
+
+    def _step_gathered(self, poses, half_extents, gathered, start):
         """Check as :meth:`step`, with what was ``gathered`` for this version and input shape.
 
-        ``half_extents`` C-contiguous float64 of the gathered shape (World.step's fast path).
+        ``half_extents`` C-contiguous float64 of the gathered shape.
         """
         if half_extents.ndim == 1:
             half_extents = half_extents.reshape(1, 3)

@@ -281,17 +281,9 @@ class World:
         without a SAT. The result's contacts are read-only: later steps reuse them.
         """
         start = time.perf_counter()
-        gathered = self._one_pass.gathered
-        # The one pass as last time (a robot's tick): the input as it was, gathered arguments.
-        if gathered is not None and gathered.version == self._rows.version \
-                and type(poses) is np.ndarray and poses.shape == gathered.last_poses.shape \
-                and type(half_extents) is np.ndarray \
-                and half_extents.shape == gathered.half_extents_shape \
-                and poses.dtype == half_extents.dtype == np.float64 \
-                and poses.flags.c_contiguous and half_extents.flags.c_contiguous \
-                and poses.flags.writeable and half_extents.flags.writeable:
-            result = self._one_pass.step_again(poses, half_extents, gathered, start)
-            self._previous = gathered.last_poses
+        result = self._one_pass.step_as_before(poses, half_extents, start)  # a robot's tick
+        if result is not None:
+            self._previous = self._one_pass.last_poses
             return result
         poses = as_poses(poses)
         half_extents = np.asarray(half_extents, dtype=np.float64)
