@@ -245,7 +245,8 @@ class Robot:
         at q = 0 in the frame the root link is at ``base_pose`` in (module docstring, Reach).
         """
         model, frames = self.model, self._zero_frames(base_pose)
-        spheres = [_center_sphere(model, frames, box, link) for box, link in zip(first, above)]
+        spheres = [_center_sphere(model, self._travels, frames, box, link)
+                   for box, link in zip(first, above)]
         return (np.array([sphere[0] for sphere in spheres]).reshape(-1, 3),
                 np.array([sphere[1] for sphere in spheres]))
 
@@ -470,35 +471,43 @@ def _chain_radii(model, travels, box, above):
     the joints between them, the ones that move the box relative to that link.
     """
     radii = np.zeros(len(model.joint_limits))
-    link = model.box_links[box]
-    # Walking up from the box: the reach below the current joint grows as we go.
-    reach = np.linalg.norm(model.box_translations[box]) + np.linalg.norm(model.half_extents[box])
-    while link != above and model.parents[link] != NO_INDEX:
+    # The reach from each joint's origin to any point of the box: the walk from its centre,
+    # plus its half diagonal.
+    start = np.linalg.norm(model.box_translations[box]) + np.linalg.norm(model.half_extents[box])
+    for link, reach in _walk_up(model, travels, box, above, start):
         kind = model.joint_types[link]
         if kind != FIXED:
             weight = abs(model.multipliers[link])
             radii[model.q_indices[link]] += weight * (reach if kind == REVOLUTE else 1.0)
-        reach += np.linalg.norm(model.origin_translations[link]) + travels[link]
-        link = model.parents[link]
     return radii
 
 
-def _center_sphere(model, frames, box, above):
+def _walk_up(model, travels, box, above, start):
+    """Yield (link, walked) from box ``box``'s link up to link ``above`` (NO_INDEX: the root).
+
+    ``walked`` bounds the distance from the link's origin to what ``start`` bounds it from
+    the box's link's origin: each joint on the way adds its origin's |xyz| and its travel.
+    """
+    link, walked = model.box_links[box], start
+    while link != above and model.parents[link] != NO_INDEX:
+        yield link, walked
+        walked += np.linalg.norm(model.origin_translations[link]) + travels[link]
+        link = model.parents[link]
+
+
+def _center_sphere(model, travels, frames, box, above):
     """Return (centre, reach) of :meth:`Robot.center_spheres` for one box (module docstring)."""
     rotations, translations = frames
     link = model.box_links[box]
     centre = translations[link] + rotations[link] @ model.box_translations[box]
     reach = 0.0
-    # Walking up: ``walked`` bounds the box centre's distance from the current link's origin.
-    walked = np.linalg.norm(model.box_translations[box])
-    while link != above and model.parents[link] != NO_INDEX:
+    for link, walked in _walk_up(model, travels, box, above,
+                                 np.linalg.norm(model.box_translations[box])):
         kind = model.joint_types[link]
         if kind == PRISMATIC:  # its link's origin slides: no fixed point bounds the box
             return centre, math.inf
         if kind == REVOLUTE:  # its link's origin is fixed relative to the parent link
             centre, reach = translations[link], walked
-        walked += np.linalg.norm(model.origin_translations[link])
-        link = model.parents[link]
     return centre, reach
 
 
