@@ -244,7 +244,7 @@ class Robot:
         ``centres[p]``, a point fixed relative to link ``above[p]`` (NO_INDEX: the root), given
         at q = 0 in the frame the root link is at ``base_pose`` in (module docstring, Reach).
         """
-        model, frames = self.model, self._zero_frames(base_pose)
+        model, frames = self.model, self._link_frames(np.zeros(self.dof), base_pose)
         spheres = [_center_sphere(model, self._travels, frames, box, link)
                    for box, link in zip(first, above)]
         return (np.array([sphere[0] for sphere in spheres]).reshape(-1, 3),
@@ -269,12 +269,11 @@ class Robot:
             self._center_gaps.update(zip(new, gaps.tolist()))
         return np.array([self._center_gaps[pair] for pair in pairs])
 
-    def _zero_frames(self, base_pose):
-        """Return the link frames (rotations, translations) at q = 0, the root at ``base_pose``."""
-        count = len(self.link_names)
-        rotations, translations = np.empty((count, 3, 3)), np.empty((count, 3))
-        link_transforms(self.model, np.asarray(base_pose, np.float64), np.zeros(self.dof),
-                        rotations, translations)
+    def _link_frames(self, q, base_pose):
+        """Return the link frames (rotations, translations) at q, the root at ``base_pose``."""
+        rotations, translations = link_frames(self.model)
+        link_transforms(self.model, np.asarray(base_pose, np.float64), q, rotations,
+                        translations)
         return rotations, translations
 
     @property
@@ -298,11 +297,9 @@ class Robot:
         state = self._states(q)
         if len(state) != 1 or np.ndim(q) != 1:
             raise ValueError('link_poses takes one state q of shape (%d,)' % self.dof)
-        count = len(self.link_names)
-        rotations, translations = np.empty((count, 3, 3)), np.empty((count, 3))
-        link_transforms(self.model, IDENTITY_POSE, state[0], rotations, translations)
+        rotations, translations = self._link_frames(state[0], IDENTITY_POSE)
         return np.array([pose_from(rotations[link], translations[link])
-                         for link in range(count)])
+                         for link in range(len(self.link_names))])
 
     def checked_states(self, q):
         """Return q (dof,) or (K, dof) as (K, dof) float64; ValueError naming what is wrong.
