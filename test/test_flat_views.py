@@ -1,9 +1,9 @@
-"""flat_views.view: a part of a flat array in any shape, against numpy's reshape of a slice."""
+"""flat_views: view against numpy's reshape of a slice, copy_into against assignment."""
 import numpy as np
 import pytest
 
 from collision_node.pipeline._jit import kernel
-from collision_node.pipeline.flat_views import view
+from collision_node.pipeline.flat_views import copy_into, view
 
 
 @kernel
@@ -39,3 +39,31 @@ def test_a_view_keeps_its_array_alive():
 def test_a_part_outside_the_array_raises(start, rows, columns):
     with pytest.raises(IndexError):
         _view_2d(np.zeros(15), start, rows, columns)
+
+
+@kernel
+def _copy(destination, source):
+    copy_into(destination, source)
+
+
+@pytest.mark.parametrize('shape', [(5,), (3, 4), (2, 2, 3), (0, 3)])
+def test_copy_into_equals_numpy_assignment(shape):
+    source = np.random.default_rng(1).normal(size=shape)
+    destination = np.zeros(shape)
+    _copy(destination, source)
+    np.testing.assert_array_equal(destination, source)
+
+
+def test_copy_into_a_column_and_from_a_gather():
+    table = np.zeros((4, 3), np.int64)
+    _copy(table[:, 1], np.arange(4))  # a strided destination
+    np.testing.assert_array_equal(table, [[0, k, 0] for k in range(4)])
+    values = np.arange(10.0)
+    order = np.array([3, 1, 2])
+    _copy(values[:3], values[order])  # read whole before the write, as numpy's
+    np.testing.assert_array_equal(values[:3], [3.0, 1.0, 2.0])
+
+
+def test_copy_into_arrays_of_other_shapes_raises():
+    with pytest.raises(ValueError, match='differ in shape'):
+        _copy(np.zeros((2, 3)), np.zeros((3, 2)))

@@ -72,6 +72,7 @@ from collision_node.benchmarks.robot import arm_states, arm_world
 from collision_node.pipeline import scenes
 from collision_node.pipeline.broadphase import NAMES
 from collision_node.pipeline.scenes import uniform, UNIFORM_HALF_EXTENTS
+from collision_node.pipeline.warm_up import BACKGROUND_READY
 from collision_node.pipeline.world import Result, World
 from collision_node.ros import diagnostics
 from collision_node.ros.cdr import ENCAPSULATION_SIZE, serialize_pose_array
@@ -309,6 +310,17 @@ def wait_ready(client, process, log, frame, run_id, started):
             return min(t for key, t in client.received.items() if key[0] == run_id) - started
 
 
+def wait_logged(log, text, timeout_s):
+    """Return whether the node's ``log`` (start_node's) holds ``text`` within ``timeout_s``."""
+    deadline = time.perf_counter() + timeout_s
+    while time.perf_counter() < deadline:
+        log.seek(0)  # the node appends at the end, where the read leaves the offset
+        if text in log.read():
+            return True
+        time.sleep(0.1)
+    return False
+
+
 def settle(client, frames, run_id):
     """Send inputs one at a time, each after the last was answered (auto picks its phase)."""
     for k in range(SETTLE_ANSWERS):
@@ -453,6 +465,11 @@ def _against_echo(name, plan, domain_id, progress, params_path, frames, contacts
                 ready_s = wait_ready(client, *processes[who], frames[0], 1, started)
                 settle(client, frames, 2)
                 progress('%s, %s: ready after %.2f s' % (name, who, ready_s))
+            # Timed as the node runs after its first seconds: once its background warm-up
+            # (every other kernel, loaded in its process) no longer competes with its ticks.
+            if not wait_logged(processes['node'][1], BACKGROUND_READY, READY_TIMEOUT_S):
+                raise RuntimeError('the node did not finish its background warm-up within '
+                                   '%g s' % READY_TIMEOUT_S)
             for turn in range(plan.arm_turns):
                 for who, client in clients.items():
                     measured, _, _ = publish_at_rate(client, frames, ARM_RATE_HZ, count,

@@ -146,7 +146,11 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
     start = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())  # ``boxes`` stays unwritten
     end = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     at = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
-    _place_waypoint(model, base_pose, waypoints, frames, 0, scratch, start)
+    # The first waypoint and "exact" passed as an int64 and a bool, typed as the variables
+    # passed at the other calls: a literal 0 or True would compile those kernels again for
+    # that constant alone.
+    first, exact = np.int64(0), np.bool_(True)
+    _place_waypoint(model, base_pose, waypoints, frames, first, scratch, start)
     radii = np.sqrt(np.sum(start[2] * start[2], axis=1))  # half diagonals: the boxes' spheres
     start_placed = True
     # A lower bound on each pair's distance at the segment's start: what a test there or at
@@ -194,7 +198,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
                 enough = margins[p] + max(motion, resolution)
                 bound = _sphere_gap(start[0], radii, a, b)
                 if bound <= enough:
-                    bound = _clearance(start, a, b, bound, enough, True)
+                    bound = _clearance(start, a, b, bound, enough, exact)
             measured[p] = False
             free = bound - margins[p]
             if free > motion:
@@ -211,7 +215,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
             enough = margins[p] + motion * (1.0 - cleared[p])
             bound = _sphere_gap(end[0], radii, a, b)
             if bound <= enough:
-                bound = _clearance(end, a, b, bound, enough, True)
+                bound = _clearance(end, a, b, bound, enough, exact)
             free = bound - margins[p]
             # The next segment starts here: a pair its credit leaves untested takes this
             # bound (the exact distance when the spheres and the SAT fell short) as its test.

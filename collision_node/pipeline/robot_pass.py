@@ -41,7 +41,7 @@ import numpy as np
 
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE, STATIC, write_contact
-from collision_node.pipeline.flat_views import view
+from collision_node.pipeline.flat_views import copy_into, view
 from collision_node.pipeline.frames import matrix
 from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORDINATE,
                                          NON_FINITE_POSE, OUT_OF_RANGE, TIE_ULPS, VALID)
@@ -271,13 +271,18 @@ def check_robot_states(states, floats, ints, first_state, stop_state, frame_rota
             candidates[n, 0], candidates[n, 1], candidates[n, 2] = a, b, p
             n += 1
         passed += n
+        # The culls tested the spheres: no prefilter. np.bool_(False) is a bool as the one
+        # pass passes its own, where the literal False would compile the SAT's loop again
+        # for that constant alone (two variants, about 4 s).
+        no_prefilter = np.bool_(False)
         if settings[HAS_MARGIN] != 0.0:
             sat_tests += collide_pair_rows(centers, rotations, extents, radii, candidates[:n],
-                                           False, settings[MARGIN], margins, status, depth,
-                                           normal, point)
+                                           no_prefilter, settings[MARGIN], margins, status,
+                                           depth, normal, point)
         else:
             sat_tests += collide_pair_rows(centers, rotations, extents, radii, candidates[:n],
-                                           False, None, None, status, depth, normal, point)
+                                           no_prefilter, None, None, status, depth, normal,
+                                           point)
         if len(out) - reported < n:
             out = _grown(out, reported + n)
         for k in range(n):
@@ -318,19 +323,19 @@ def _workspace(model_ints, model_floats, base_pose, pairs, keys, settings, stati
     model_int_count, model_float_count = packed_sizes(model_ints)
     floats = np.zeros(model_float_count + ROWS + rows * ROW_FLOATS + links * 12 + most * 7)
     ints = np.zeros(model_int_count + 2 + most * 5 + count + most * 3, np.int64)
-    floats[:model_float_count] = model_floats
-    ints[:model_int_count] = model_ints
+    copy_into(floats[:model_float_count], model_floats)
+    copy_into(ints[:model_int_count], model_ints)
     ints[model_int_count], ints[model_int_count + 1] = most, n_static
     (view_pose, view_settings, bounds, view_pairs, view_keys, centers, rotations, extents,
      aabbs, radii, margins) = _views(floats, ints)[:11]
-    view_pose[:] = base_pose
-    view_settings[:] = settings
-    view_pairs[:] = pairs
-    view_keys[:] = keys
+    copy_into(view_pose, base_pose)
+    copy_into(view_settings, settings)
+    copy_into(view_pairs, pairs)
+    copy_into(view_keys, keys)
     pad = settings[PAD]
     for b in range(count):
         h = model.half_extents[b]
-        extents[b] = h
+        copy_into(extents[b], h)
         radii[b] = math.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]) + pad
     for s in range(n_static):
         row, box = count + s, static_boxes[s]
@@ -436,5 +441,5 @@ def _beyond_box(d, r, e, reach):
 @kernel
 def _grown(out, needed):
     more = np.empty(max(2 * len(out), needed), STATE_CONTACT_DTYPE)
-    more[:len(out)] = out
+    copy_into(more[:len(out)], out)
     return more

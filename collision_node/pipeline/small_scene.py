@@ -29,6 +29,7 @@ from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.contacts import (CONTACT_DTYPE, DYNAMIC, STATE_CONTACT_DTYPE, STATIC,
                                               write_contact)
 from collision_node.pipeline.filters import dynamic_bits, pair_checked, static_key
+from collision_node.pipeline.flat_views import copy_into
 from collision_node.pipeline.obb import aabbs_overlap, VALID, write_boxes
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 
@@ -77,8 +78,8 @@ def check_scene(poses, half_extents, last, statics, rows, options):
     out = np.empty(count, CONTACT_DTYPE)
     _write_contacts(out, ids, floats, 0, count, statics, None)
     if bad < 0 and not invalid:
-        last_poses[:] = poses
-        last_half_extents[:] = half_extents
+        copy_into(last_poses, poses)
+        copy_into(last_half_extents, half_extents)
         last_valid[0] = 1
     return (out, (stats[COMPARED], stats[CANDIDATES], stats[FILTERED], stats[SAT_TESTS]), bad,
             code, invalid, 0)
@@ -262,8 +263,8 @@ def _grown(ids, floats, needed):
     capacity = max(2 * len(ids), needed)
     more_ids = np.empty((capacity, 2), np.int64)
     more_floats = np.empty((capacity, _FLOATS))
-    more_ids[:len(ids)] = ids
-    more_floats[:len(floats)] = floats
+    copy_into(more_ids[:len(ids)], ids)
+    copy_into(more_floats[:len(floats)], floats)
     return more_ids, more_floats
 
 

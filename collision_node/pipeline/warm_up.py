@@ -37,6 +37,7 @@ from collision_node.pipeline.world import ONE_PASS_PAIRS, ONE_PASS_PHASES, World
 
 BACKGROUND_NICENESS = 10  # the background compile yields the CPUs to the node's ticks
 STOP_POLL_S = 0.2  # how often the parts' compile looks whether it is asked to stop
+BACKGROUND_READY = 'every other kernel ready'  # warm_up_in_background's report, once done
 WARM_UP_BODIES = 64  # half static: enough for every broad phase to run its full code path
 AUTO_SPREAD_BODIES = 2 * GRID_BODIES  # auto measures the boxes' spread from this many bodies
 # Half static, half dynamic (n/2 · (n/2 - 1) / 2 + n²/4 pairs): past ONE_PASS_PAIRS.
@@ -226,8 +227,8 @@ def warm_up_in_background(compile_first, report=None):
                         return
                     warm_up([name])
                 if report is not None:
-                    report('every other kernel ready, in the background in %.1f s'
-                           % (time.monotonic() - start))
+                    report('%s, in the background in %.1f s'
+                           % (BACKGROUND_READY, time.monotonic() - start))
 
             _background = threading.Thread(target=run, name='warm_up', daemon=True)
             _background.start()
@@ -375,7 +376,8 @@ def _robot():
     """Run the robot model's forward kinematics, then the robot in a World."""
     # One state, a batch, the link frames; then joint states and trajectories with and
     # without margins (the World's or the colliders' own: the same types), a robot with pairs
-    # to leave out and one with none.
+    # to leave out and one with none. A step of the robot's boxes is the one pass's, compiled
+    # by its sections (the same types): run here too, it would compile them again beside them.
     scene = _Scene(WARM_UP_BODIES)
     robot = Robot.from_urdf(WARM_UP_ROBOT)
     robot.box_poses(np.zeros(robot.dof))
@@ -387,7 +389,6 @@ def _robot():
         world.set_static(scene.static_poses, scene.static_half_extents)
         world.set_robot(arm)
         world.check_joints(np.zeros(arm.dof))
-        world.step(world.robot_poses(np.zeros(arm.dof)), arm.half_extents)  # its boxes
         world.check_trajectory(np.linspace(0.0, 0.1, 2 * arm.dof).reshape(2, arm.dof))
 
 

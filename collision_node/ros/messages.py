@@ -16,6 +16,7 @@ from sensor_msgs.msg import PointCloud2, PointField
 
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
+from collision_node.pipeline.flat_views import copy_into
 from collision_node.ros.cdr import (ENCAPSULATION_SIZE, INT32_RANGE, point_cloud_parts,
                                     POINT_FIELD_DATATYPES, UINT32_RANGE)
 
@@ -181,7 +182,7 @@ def _write_cloud(buffer, head, sec, nanosec, width_at, rows, row_size, is_float,
     count = rows.shape[0] // row_size
     data = count * point_size
     at = head.shape[0]
-    buffer[:at] = head
+    copy_into(buffer[:at], head)
     _put_uint32(buffer, STAMP_OFFSET, sec & 0xFFFFFFFF)  # an int32, two's complement
     _put_uint32(buffer, STAMP_OFFSET + 4, nanosec)
     _put_uint32(buffer, width_at, count)
@@ -197,9 +198,9 @@ def _write_cloud(buffer, head, sec, nanosec, width_at, rows, row_size, is_float,
                 point[point_word[f]] = np.float32(floats[(first + contact_word[f]) // 2])
             else:
                 point_words[point_word[f]] = words[first + contact_word[f]]
-        buffer[at:at + point_size] = point_bytes
+        copy_into(buffer[at:at + point_size], point_bytes)
         at += point_size
-    buffer[at:at + tail.shape[0]] = tail
+    copy_into(buffer[at:at + tail.shape[0]], tail)
     return at + tail.shape[0]
 
 

@@ -31,6 +31,7 @@ from collision_node.pipeline.broadphase.cells import (
     MAX_CELLS_PER_BODY)
 from collision_node.pipeline.broadphase.validation import (
     cell_counts, cell_of_key, cell_ranges, check, check_permutation, range_holds)
+from collision_node.pipeline.flat_views import copy_into
 
 # Buckets per entry: at 2 a bucket holds ~1 entry on average, so reading one is nearly free.
 BUCKETS_PER_ENTRY = 2
@@ -151,7 +152,7 @@ def fill_table(table, lattice, aabbs, rows, n, first_row, shift):
     for i in range(n):
         row = rows[i]
         slot_rows[i] = row
-        slot_aabbs[i] = aabbs[row]
+        copy_into(slot_aabbs[i], aabbs[row])
         cells = cell_range(lattice, slot_aabbs, i, ranges, i)
         is_big[row - first_row] = cells > MAX_CELLS_PER_BODY
         if cells > MAX_CELLS_PER_BODY:

@@ -27,6 +27,7 @@ import numpy as np
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase.hash_map import HASH_MULTIPLIER  # Fibonacci hashing
 from collision_node.pipeline.broadphase.pair_buffer import emit
+from collision_node.pipeline.flat_views import copy_into
 from collision_node.pipeline.obb import aabbs_overlap
 
 # Cell coordinates are packed into one int64 key with 21 bits per axis, so a lattice spans at
@@ -132,7 +133,7 @@ def keeps_cells(lattice, aabbs, rows, ranges, slot_of_row, copies, kept):
                 same &= scratch[0, end, k] == ranges[slot, end, k]
         kept[i] = same
         if same and len(copies):
-            copies[slot] = aabbs[row]
+            copy_into(copies[slot], aabbs[row])
 
 
 @kernel

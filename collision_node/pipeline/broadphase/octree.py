@@ -67,6 +67,7 @@ from collision_node.pipeline.broadphase.pair_buffer import emit, emit_if, PairBu
 from collision_node.pipeline.broadphase.validation import (
     cell_counts, cell_of_key, cell_ranges, check, check_distinct, check_hash_map, loose_mask,
     range_holds)
+from collision_node.pipeline.flat_views import copy_into
 from collision_node.pipeline.obb import aabbs_overlap, overlap_across
 
 NULL = -1  # no leaf, no entry
@@ -406,7 +407,7 @@ def _update(state, lattice, aabbs, n_static, n_dynamic, tick, cooldown):
     big = 0
     for i in range(n_dynamic):
         if moves[i]:
-            body_range[i] = new_range[i]
+            copy_into(body_range[i], new_range[i])
             if _cell_count(body_range, i) > MAX_CELLS_PER_BODY:
                 bodies[i, BODY_STATE] = BIG
             else:

@@ -28,6 +28,7 @@ import numpy as np
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.broadphase.pair_buffer import emit_if, PairBuffer
 from collision_node.pipeline.broadphase.validation import check, check_permutation, loose_mask
+from collision_node.pipeline.flat_views import copy_into
 from collision_node.pipeline.obb import overlap_across
 
 AXIS_SWITCH_RATIO = 1.25   # another axis must spread this many times more to take over
@@ -180,8 +181,8 @@ def _full_sort(aabbs, axis, order, keys):
     for i in range(len(order)):
         keys[i] = aabbs[order[i], 0, axis]
     by_key = np.argsort(keys, kind='mergesort')
-    order[:] = order[by_key]
-    keys[:] = keys[by_key]
+    copy_into(order, order[by_key])
+    copy_into(keys, keys[by_key])
 
 
 @kernel
@@ -209,7 +210,7 @@ def _insertion_sort(aabbs, axis, order, keys, max_swaps):
 @kernel
 def _gather(aabbs, order, out):
     for i in range(len(order)):
-        out[i] = aabbs[order[i]]
+        copy_into(out[i], aabbs[order[i]])
 
 
 @kernel
