@@ -105,6 +105,10 @@ SECTIONS = ('latency', 'arm', 'joint_states', 'floor', 'tick', 'output', 'skips'
             'gaps', 'startup')
 ARM_RATE_HZ = 200.0
 ARM_TARGET_ADDED_MS = 0.15  # the node's median latency over the echo's, at most (issue target)
+# The inputs the node must answer for the arm's verdict: it keeps up. Its input queue is one
+# deep (newest input wins), so a stall of one period (5 ms: the 2-vCPU VM's scheduler, about
+# once a minute) drops an input; one in a thousand is far beyond that, far below falling behind.
+ARM_ANSWERED_FRACTION = 0.999
 ECHO_NAMESPACE = 'echo'     # the arm section's echo answers /echo/dynamic_poses
 # The inputs the node answers on collisions: type and the node's own QoS for each.
 INPUTS = {'dynamic_poses': (PoseArray, INPUT_QOS),
@@ -497,7 +501,10 @@ def _against_echo(name, plan, domain_id, progress, params_path, frames, contacts
 
 
 def arm_target_line(row):
-    """Return the arm or joint_states section's target as one line, with its verdict."""
+    """Return the arm or joint_states section's target as one line, with its verdict.
+
+    PASS: the median within the target, and ARM_ANSWERED_FRACTION of the inputs answered.
+    """
     return ('%s through ROS at %g Hz, median latency <= echo + %g ms: node %.3f ms (p90 %.3f, '
             'p99 %.3f), echo %.3f ms (p90 %.3f, p99 %.3f) (%d/%d and %d/%d answered): +%.3f ms: '
             '%s' % (
@@ -506,7 +513,7 @@ def arm_target_line(row):
                 row['echo_ms_p90'], row['echo_ms_p99'], row['node_answered'], row['sent'],
                 row['echo_answered'], row['sent'], row['added_ms'],
                 'PASS' if row['added_ms'] <= row['target_added_ms']
-                and row['node_answered'] == row['sent'] else 'FAIL'))
+                and row['node_answered'] >= ARM_ANSWERED_FRACTION * row['sent'] else 'FAIL'))
 
 
 def floor_section(plan, statics, domain_id, progress):
