@@ -295,9 +295,14 @@ def stop_node(process, log):
     log.close()
 
 
+def node_log(log):
+    """Return what the node wrote to ``log`` (start_node's) so far."""
+    log.seek(0)  # the node appends at the end, where the read leaves the offset
+    return log.read()
+
+
 def node_failure(process, log):
-    log.seek(0)
-    return 'the node exited with %s:\n%s' % (process.returncode, log.read()[-3000:])
+    return 'the node exited with %s:\n%s' % (process.returncode, node_log(log)[-3000:])
 
 
 def wait_ready(client, process, log, frame, run_id, started):
@@ -312,17 +317,6 @@ def wait_ready(client, process, log, frame, run_id, started):
         k += 1
         if client.wait(lambda: any(key[0] == run_id for key in client.received), 0.2):
             return min(t for key, t in client.received.items() if key[0] == run_id) - started
-
-
-def wait_logged(log, text, timeout_s):
-    """Return whether the node's ``log`` (start_node's) holds ``text`` within ``timeout_s``."""
-    deadline = time.perf_counter() + timeout_s
-    while time.perf_counter() < deadline:
-        log.seek(0)  # the node appends at the end, where the read leaves the offset
-        if text in log.read():
-            return True
-        time.sleep(0.1)
-    return False
 
 
 def settle(client, frames, run_id):
@@ -471,7 +465,9 @@ def _against_echo(name, plan, domain_id, progress, params_path, frames, contacts
                 progress('%s, %s: ready after %.2f s' % (name, who, ready_s))
             # Timed as the node runs after its first seconds: once its background warm-up
             # (every other kernel, loaded in its process) no longer competes with its ticks.
-            if not wait_logged(processes['node'][1], BACKGROUND_READY, READY_TIMEOUT_S):
+            log = processes['node'][1]
+            if not clients['node'].wait(lambda: BACKGROUND_READY in node_log(log),
+                                        READY_TIMEOUT_S):
                 raise RuntimeError('the node did not finish its background warm-up within '
                                    '%g s' % READY_TIMEOUT_S)
             for turn in range(plan.arm_turns):

@@ -5,6 +5,11 @@ same flags, for a small helper numba inlines into its callers), so the flags can
 between modules. ``fastmath`` stays off everywhere: it lets LLVM assume no NaN/Inf, which
 turns ``np.isnan`` into ``False`` and reassociates the SAT's sums (doc/accuracy.md).
 
+Constant arguments. numba types a constant passed to a kernel (``0``, ``False``) as a literal,
+which compiles that kernel (and what it inlines) once more for that constant alone. A call
+that passes a constant where other calls pass variables passes ``np.int64(0)`` or
+``np.bool_(False)`` instead: values of the variables' types.
+
 Cache. numba caches next to the sources when that directory is writable, else in the user's
 cache directory (~/.cache/numba), and NUMBA_CACHE_DIR overrides both. When none of them is
 writable (a read-only install run by a user without a writable home, e.g. a service), numba

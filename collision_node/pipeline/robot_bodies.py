@@ -146,9 +146,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
     start = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())  # ``boxes`` stays unwritten
     end = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     at = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
-    # The first waypoint and "exact" passed as an int64 and a bool, typed as the variables
-    # passed at the other calls: a literal 0 or True would compile those kernels again for
-    # that constant alone.
+    # Not literal constants: _jit, "Constant arguments".
     first, exact = np.int64(0), np.bool_(True)
     _place_waypoint(model, base_pose, waypoints, frames, first, scratch, start)
     radii = np.sqrt(np.sum(start[2] * start[2], axis=1))  # half diagonals: the boxes' spheres

@@ -223,6 +223,9 @@ def check_robot_states(states, floats, ints, first_state, stop_state, frame_rota
     status = np.empty(most, np.int8)
     out = np.empty(max(most, 1), STATE_CONTACT_DTYPE)  # grown when full
     reported = passed = sat_tests = 0
+    # The culls test the spheres: the SAT's prefilter is off (not the literal False: _jit,
+    # "Constant arguments").
+    no_prefilter = np.bool_(False)
     for state in range(first_state, stop_state):
         q = states[state]
         for j in range(q.shape[0]):
@@ -271,10 +274,6 @@ def check_robot_states(states, floats, ints, first_state, stop_state, frame_rota
             candidates[n, 0], candidates[n, 1], candidates[n, 2] = a, b, p
             n += 1
         passed += n
-        # The culls tested the spheres: no prefilter. np.bool_(False) is a bool as the one
-        # pass passes its own, where the literal False would compile the SAT's loop again
-        # for that constant alone (two variants, about 4 s).
-        no_prefilter = np.bool_(False)
         if settings[HAS_MARGIN] != 0.0:
             sat_tests += collide_pair_rows(centers, rotations, extents, radii, candidates[:n],
                                            no_prefilter, settings[MARGIN], margins, status,

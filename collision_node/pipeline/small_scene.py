@@ -68,9 +68,8 @@ def check_scene(poses, half_extents, last, statics, rows, options):
     if last_valid[0] == 1 and same_input(last_poses, poses, last_half_extents, half_extents):
         return np.empty(0, CONTACT_DTYPE), (0, 0, 0, 0), -1, VALID, 0, 1
     last_valid[0] = 0
-    # State 0 to 1 as int64 values, not the constants 0 and 1: numba types a constant
-    # argument as a literal, which would compile _check_states again for this call alone
-    # (six more variants, about 20 s of a first start).
+    # State 0 to 1 as int64 values, not literal constants (_jit, "Constant arguments": six
+    # more variants of _check_states, about 20 s of a first start).
     first_state = np.int64(0)
     found, _, stats, _, bad, code, invalid = _check_states(
         poses, len(poses), half_extents, statics, rows, options, first_state, first_state + 1)
