@@ -321,6 +321,33 @@ def test_own_robot_fk_agrees_with_naive_matrices(own):
                 robot.collision_origins[box])) @ local, atol=FK_TOLERANCE)
 
 
+def test_a_long_chain_of_turns_stays_exact_and_unit():
+    """60 joints with random axes, origins and angles: the quaternion chain's drift is small.
+
+    Each link's orientation is a product of its parent's and its joint's quaternions
+    (robot.py, Composition): the boxes must still agree with naive 4x4 products, and the
+    box quaternions stay unit to rounding, far inside what a step accepts.
+    """
+    rng = np.random.default_rng(11)
+    count = 60
+    names = ['base'] + ['l%d' % k for k in range(1, count + 1)]  # naive frames start at base
+    links = {name: [((0.01, 0.0, 0.02), (0.3, -0.2, 0.1), 'box', {'size': '0.02 0.02 0.02'})]
+             for name in names}
+    joints = [{'name': 'j%d' % k, 'type': ('revolute', 'continuous', 'prismatic')[k % 3],
+               'parent': names[k], 'child': names[k + 1],
+               'xyz': tuple(rng.uniform(-0.2, 0.2, 3).tolist()),
+               'rpy': tuple(rng.uniform(-3, 3, 3).tolist()),
+               'axis': tuple(rng.normal(size=3).tolist()), 'limits': (-3.0, 3.0)}
+              for k in range(count)]
+    robot = Robot.from_urdf(urdf_text(links, joints))
+    for q in rng.uniform(-3.0, 3.0, (10, robot.dof)):
+        expected = naive_collision_frames(links, joints, dict(zip(robot.joint_names, q)))
+        poses = robot.box_poses(q)
+        for box, frame in enumerate(expected):
+            np.testing.assert_allclose(matrix(poses[box]), frame, atol=FK_TOLERANCE)
+        assert np.abs(np.linalg.norm(poses[:, 3:], axis=1) - 1.0).max() < 1e-14
+
+
 def test_batches_and_the_base_pose(own):
     robot = own[0]
     rng = np.random.default_rng(4)

@@ -28,6 +28,25 @@ def matrix(rotations, a):
 
 
 @kernel
+def rotation_from_quaternion(x, y, z, w):
+    """Return the rotation matrix of a unit quaternion, row-major (9-tuple)."""
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w),
+            2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w),
+            2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y))
+
+
+@kernel
+def quaternion_product(p, q):
+    """Return the Hamilton product p q of two quaternions (x, y, z, w): q's turn, then p's."""
+    px, py, pz, pw = p
+    qx, qy, qz, qw = q
+    return (pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+            pw * qw - px * qx - py * qy - pz * qz)
+
+
+@kernel
 def relative_pose(ra, rb, d):
     """R = AᵀB and t = Aᵀd from the world rotations (row-major) and d = c_B − c_A."""
     rel = (column_dot(ra, 0, rb, 0), column_dot(ra, 0, rb, 1), column_dot(ra, 0, rb, 2),

@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from collision_node.pipeline._jit import kernel
+from collision_node.pipeline.frames import rotation_from_quaternion
 
 # A quaternion whose norm is within this of 1 is normalised; farther off it is rejected.
 # 1e-3 accepts quaternions printed with 4+ significant digits or stored as float32, and
@@ -188,14 +189,6 @@ def _as_inputs(poses, half_extents):
 
 
 @kernel
-def _rotation_from_quaternion(x, y, z, w):
-    """Return the rotation matrix of a unit quaternion, row-major (9-tuple)."""
-    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w),
-            2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w),
-            2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y))
-
-
-@kernel
 def _problem(pose, half):
     """Return why ``pose`` and ``half`` (tuples) cannot be a box (a REASONS code), or VALID."""
     for k in range(7):
@@ -278,7 +271,7 @@ def box_axes(pose, half):
     """
     x, y, z, w = pose[3], pose[4], pose[5], pose[6]
     norm = math.sqrt(x * x + y * y + z * z + w * w)
-    r = _rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm)
+    r = rotation_from_quaternion(x / norm, y / norm, z / norm, w / norm)
     reach = (abs(r[0]) * half[0] + abs(r[1]) * half[1] + abs(r[2]) * half[2],
              abs(r[3]) * half[0] + abs(r[4]) * half[1] + abs(r[5]) * half[2],
              abs(r[6]) * half[0] + abs(r[7]) * half[1] + abs(r[8]) * half[2])

@@ -12,11 +12,16 @@ offset 0 and its own entry of q, a mimic joint the entry of the joint it follows
 a mimic composed into one affine map), a fixed joint no entry (q index -1). q holds the
 moving, non-mimic joints in URDF document order.
 
-Composition. The chain is composed as translation + 3x3 rotation matrix and each box's
-rotation is turned into a quaternion once at the end: matrices stay orthonormal to rounding
-along a chain without renormalising (a product of quaternions drifts off unit length), a
-joint's turn is Rodrigues' formula on its stored axis, and the one conversion per box
-(Shepperd's method, then normalised) is cheaper than converting every joint.
+Composition. Each link's orientation is a quaternion, its parent's times the joint's: the
+origin's quaternion o for a fixed or sliding joint, and for a turn by value v about axis a,
+o (a sin(v/2), cos(v/2)) = cos(v/2) o + sin(v/2) (o (a, 0)), two quaternions stored per
+joint (``origin_quaternions``, ``turn_quaternions``), so a turn costs a sine, a cosine and
+eight flops. The link's rotation matrix is made from its quaternion (for the translations
+and the box centres), and a box's quaternion is its link's times the box's own, a product
+and no conversion: a box's pose is what a pass needs only for the few boxes a cull leaves
+(robot_pass.py). A product of unit quaternions drifts off unit length by about an ulp per
+joint: a chain of ten stays within 1e-14 of it, the quaternion a step accepts and
+normalises (obb.QUATERNION_NORM_TOLERANCE).
 
 Geometry. Every ``<collision>`` element is one box, in document order: a ``box`` exactly, a
 ``cylinder`` (about its z axis) the box around it (volume ratio 4/pi), a ``sphere`` its cube
@@ -69,6 +74,7 @@ import numpy as np
 from collision_node.pipeline import meshes, urdf
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.flat_views import view
+from collision_node.pipeline.frames import quaternion_product, rotation_from_quaternion
 
 # Joint type codes in RobotModel.joint_types (continuous is revolute without limits).
 FIXED = 0
@@ -96,6 +102,8 @@ class RobotModel(NamedTuple):
     parents: np.ndarray              # (L,) int64, NO_INDEX for the root
     origin_translations: np.ndarray  # (L, 3) joint origin in the parent's frame
     origin_rotations: np.ndarray     # (L, 3, 3)
+    origin_quaternions: np.ndarray   # (L, 4) x y z w of origin_rotations
+    turn_quaternions: np.ndarray     # (L, 4) origin_quaternions times (axis, 0)
     joint_types: np.ndarray          # (L,) int64: FIXED, REVOLUTE, PRISMATIC
     axes: np.ndarray                 # (L, 3) unit axis in the joint's frame
     q_indices: np.ndarray            # (L,) int64: the entry of q driving the joint
@@ -105,14 +113,16 @@ class RobotModel(NamedTuple):
     box_links: np.ndarray            # (B,) int64
     box_translations: np.ndarray     # (B, 3) box centre in its link's frame
     box_rotations: np.ndarray        # (B, 3, 3) box axes in its link's frame
+    box_quaternions: np.ndarray      # (B, 4) x y z w of box_rotations
     half_extents: np.ndarray         # (B, 3)
     motion_radii: np.ndarray         # (B, dof) module docstring, Motion bound
 
 
 # RobotModel's fields in the two flat arrays of pack_model, in order.
 INT_FIELDS = ('order', 'parents', 'joint_types', 'q_indices', 'box_links')
-FLOAT_FIELDS = ('origin_translations', 'origin_rotations', 'axes', 'multipliers', 'offsets',
-                'joint_limits', 'box_translations', 'box_rotations', 'half_extents',
+FLOAT_FIELDS = ('origin_translations', 'origin_rotations', 'origin_quaternions',
+                'turn_quaternions', 'axes', 'multipliers', 'offsets', 'joint_limits',
+                'box_translations', 'box_rotations', 'box_quaternions', 'half_extents',
                 'motion_radii')
 
 
@@ -205,10 +215,13 @@ class Robot:
         box_translations = np.array([box[0] for box in boxes]).reshape(-1, 3)
         box_rotations = np.array([box[1] for box in boxes]).reshape(-1, 3, 3)
         half_extents = np.array([box[2] for box in boxes]).reshape(-1, 3)
+        origin_quaternions = _quaternions(rotations)
+        turn_quaternions = np.array([quaternion_product(tuple(o), (*axis, 0.0))
+                                     for o, axis in zip(origin_quaternions, axes)])
         model = RobotModel(
-            np.array(order, np.int64), parents, translations, rotations, types, axes,
-            q_indices, multipliers, offsets, limits, box_links, box_translations,
-            box_rotations, half_extents, None)
+            np.array(order, np.int64), parents, translations, rotations, origin_quaternions,
+            turn_quaternions, types, axes, q_indices, multipliers, offsets, limits, box_links,
+            box_translations, box_rotations, _quaternions(box_rotations), half_extents, None)
         model = model._replace(motion_radii=_motion_radii(model, travels))
         origins = np.array([pose_from(rotation_from_rpy(*element.origin.rpy),
                                       element.origin.xyz)
@@ -271,9 +284,9 @@ class Robot:
 
     def _link_frames(self, q, base_pose):
         """Return the link frames (rotations, translations) at q, the root at ``base_pose``."""
-        rotations, translations = link_frames(self.model)
+        rotations, translations, quaternions = link_frames(self.model)
         link_transforms(self.model, np.asarray(base_pose, np.float64), q, rotations,
-                        translations)
+                        translations, quaternions)
         return rotations, translations
 
     @property
@@ -347,6 +360,11 @@ def pose_from(rotation, translation):
         rotation[0, 0], rotation[0, 1], rotation[0, 2], rotation[1, 0], rotation[1, 1],
         rotation[1, 2], rotation[2, 0], rotation[2, 1], rotation[2, 2])
     return pose
+
+
+def _quaternions(rotations):
+    """Return the unit quaternions (N, 4) of rotation matrices (N, 3, 3)."""
+    return np.array([quaternion_from_rotation(*r.ravel()) for r in rotations]).reshape(-1, 4)
 
 
 def _joints_by_child(joints):
@@ -574,83 +592,96 @@ def quaternion_from_rotation(r00, r01, r02, r10, r11, r12, r20, r21, r22):
 
 
 @kernel
-def link_transforms(model, base_pose, q, rotations, translations):
-    """Write every link frame (rotation (L, 3, 3), translation (L, 3)) for one state q.
+def link_transforms(model, base_pose, q, rotations, translations, quaternions):
+    """Write every link frame (rotation (L, 3, 3), translation (L, 3), quaternion (L, 4)).
 
-    The root link's frame is ``base_pose`` (its quaternion normalised here). No allocation:
-    a batch of states reuses the caller's two arrays.
+    For one state q (module docstring, Composition). The root link's frame is ``base_pose``
+    (its quaternion normalised here). No allocation: a batch of states reuses the caller's
+    arrays.
+
+    Two loops: the joints' own quaternions first, each independent of the others, so that
+    their sines and cosines overlap; then the chain, each link after its parent.
     """
+    # Entry by entry, never through a view or a name bound to an array in the loops: each
+    # costs a reference count, more than the arithmetic here.
+    for link in range(model.parents.shape[0]):
+        for i in range(4):
+            quaternions[link, i] = model.origin_quaternions[link, i]
+        if model.joint_types[link] == REVOLUTE:
+            half = 0.5 * _joint_value(model, q, link)
+            c, s = math.cos(half), math.sin(half)
+            for i in range(4):
+                quaternions[link, i] = c * quaternions[link, i] \
+                    + s * model.turn_quaternions[link, i]
     for k in range(model.order.shape[0]):
         link = model.order[k]
         parent = model.parents[link]
         if parent == NO_INDEX:
             x, y, z, w = base_pose[3], base_pose[4], base_pose[5], base_pose[6]
             norm = math.sqrt(x * x + y * y + z * z + w * w)
-            x, y, z, w = x / norm, y / norm, z / norm, w / norm
-            rotations[link, 0, 0] = 1.0 - 2.0 * (y * y + z * z)
-            rotations[link, 0, 1] = 2.0 * (x * y - z * w)
-            rotations[link, 0, 2] = 2.0 * (x * z + y * w)
-            rotations[link, 1, 0] = 2.0 * (x * y + z * w)
-            rotations[link, 1, 1] = 1.0 - 2.0 * (x * x + z * z)
-            rotations[link, 1, 2] = 2.0 * (y * z - x * w)
-            rotations[link, 2, 0] = 2.0 * (x * z - y * w)
-            rotations[link, 2, 1] = 2.0 * (y * z + x * w)
-            rotations[link, 2, 2] = 1.0 - 2.0 * (x * x + y * y)
-            for i in range(3):
-                translations[link, i] = base_pose[i]
+            _write_frame(link, (x / norm, y / norm, z / norm, w / norm),
+                         (base_pose[0], base_pose[1], base_pose[2]), rotations, translations,
+                         quaternions)
             continue
-        kind = model.joint_types[link]
-        value = 0.0
-        if kind != FIXED:
-            value = model.multipliers[link] * q[model.q_indices[link]] + model.offsets[link]
-        ax, ay, az = model.axes[link, 0], model.axes[link, 1], model.axes[link, 2]
-        if kind == REVOLUTE:
-            # Rodrigues: R = c I + s [a]x + (1 - c) a a^T, formed once for the three rows.
-            c, s = math.cos(value), math.sin(value)
-            t = 1.0 - c
-            m00, m01, m02 = c + t * ax * ax, t * ax * ay - s * az, t * ax * az + s * ay
-            m10, m11, m12 = t * ax * ay + s * az, c + t * ay * ay, t * ay * az - s * ax
-            m20, m21, m22 = t * ax * az - s * ay, t * ay * az + s * ax, c + t * az * az
-        for i in range(3):
-            # Row i of the joint's frame before its motion: parent * origin.
-            j0 = rotations[parent, i, 0] * model.origin_rotations[link, 0, 0] \
-                + rotations[parent, i, 1] * model.origin_rotations[link, 1, 0] \
-                + rotations[parent, i, 2] * model.origin_rotations[link, 2, 0]
-            j1 = rotations[parent, i, 0] * model.origin_rotations[link, 0, 1] \
-                + rotations[parent, i, 1] * model.origin_rotations[link, 1, 1] \
-                + rotations[parent, i, 2] * model.origin_rotations[link, 2, 1]
-            j2 = rotations[parent, i, 0] * model.origin_rotations[link, 0, 2] \
-                + rotations[parent, i, 1] * model.origin_rotations[link, 1, 2] \
-                + rotations[parent, i, 2] * model.origin_rotations[link, 2, 2]
-            shift = translations[parent, i] \
-                + rotations[parent, i, 0] * model.origin_translations[link, 0] \
-                + rotations[parent, i, 1] * model.origin_translations[link, 1] \
-                + rotations[parent, i, 2] * model.origin_translations[link, 2]
-            if kind == PRISMATIC:
-                shift += value * (j0 * ax + j1 * ay + j2 * az)
-            translations[link, i] = shift
-            if kind == REVOLUTE:
-                rotations[link, i, 0] = j0 * m00 + j1 * m10 + j2 * m20
-                rotations[link, i, 1] = j0 * m01 + j1 * m11 + j2 * m21
-                rotations[link, i, 2] = j0 * m02 + j1 * m12 + j2 * m22
-            else:
-                rotations[link, i, 0], rotations[link, i, 1], rotations[link, i, 2] = j0, j1, j2
+        # The origin's translation, in the parent's frame.
+        shift = _moved(rotations, translations, parent, (model.origin_translations[link, 0],
+                                                         model.origin_translations[link, 1],
+                                                         model.origin_translations[link, 2]))
+        turn = quaternion_product((quaternions[parent, 0], quaternions[parent, 1],
+                                   quaternions[parent, 2], quaternions[parent, 3]),
+                                  (quaternions[link, 0], quaternions[link, 1],
+                                   quaternions[link, 2], quaternions[link, 3]))
+        _write_frame(link, turn, shift, rotations, translations, quaternions)
+        if model.joint_types[link] == PRISMATIC:  # a slide along the axis, in the link's frame
+            value = _joint_value(model, q, link)
+            for i in range(3):
+                translations[link, i] += value * (rotations[link, i, 0] * model.axes[link, 0]
+                                                  + rotations[link, i, 1] * model.axes[link, 1]
+                                                  + rotations[link, i, 2] * model.axes[link, 2])
+
+
+@inlined_kernel
+def _joint_value(model, q, link):
+    """Return the value of a moving link's joint: multiplier * q[its index] + offset."""
+    return model.multipliers[link] * q[model.q_indices[link]] + model.offsets[link]
+
+
+@inlined_kernel
+def _moved(rotations, translations, link, t):
+    """Return the point ``t`` (3-tuple) of link ``link``'s frame in the root's frame."""
+    return (translations[link, 0] + rotations[link, 0, 0] * t[0]
+            + rotations[link, 0, 1] * t[1] + rotations[link, 0, 2] * t[2],
+            translations[link, 1] + rotations[link, 1, 0] * t[0]
+            + rotations[link, 1, 1] * t[1] + rotations[link, 1, 2] * t[2],
+            translations[link, 2] + rotations[link, 2, 0] * t[0]
+            + rotations[link, 2, 1] * t[1] + rotations[link, 2, 2] * t[2])
+
+
+@inlined_kernel
+def _write_frame(link, quaternion, translation, rotations, translations, quaternions):
+    """Write a link's frame: its quaternion, the rotation matrix of it and its translation."""
+    r = rotation_from_quaternion(*quaternion)
+    rotations[link, 0, 0], rotations[link, 0, 1], rotations[link, 0, 2] = r[0], r[1], r[2]
+    rotations[link, 1, 0], rotations[link, 1, 1], rotations[link, 1, 2] = r[3], r[4], r[5]
+    rotations[link, 2, 0], rotations[link, 2, 1], rotations[link, 2, 2] = r[6], r[7], r[8]
+    translations[link, 0], translations[link, 1], translations[link, 2] = translation
+    quaternions[link, 0], quaternions[link, 1] = quaternion[0], quaternion[1]
+    quaternions[link, 2], quaternions[link, 3] = quaternion[2], quaternion[3]
 
 
 @kernel
-def forward_kinematics(model, base_pose, q, out, rotations, translations):
+def forward_kinematics(model, base_pose, q, out, rotations, translations, quaternions):
     """Write the (B, 7) box poses of one state ``q`` (dof,) into ``out``.
 
-    ``base_pose`` (7,) is the root link's pose in the world; poses are x y z qx qy qz qw with
-    unit quaternions. ``rotations`` (L, 3, 3) and ``translations`` (L, 3) are scratch for
-    the link frames (:func:`link_frames` makes them). Never raises: the caller checks q
-    (finite, length dof).
+    ``base_pose`` (7,) is the root link's pose in the world; poses are x y z qx qy qz qw,
+    the quaternions unit to rounding (module docstring, Composition). ``rotations`` (L, 3, 3),
+    ``translations`` (L, 3) and ``quaternions`` (L, 4) are scratch for the link frames
+    (:func:`link_frames` makes them). Never raises: the caller checks q (finite, length dof).
     """
-    link_transforms(model, base_pose, q, rotations, translations)
+    link_transforms(model, base_pose, q, rotations, translations, quaternions)
     for b in range(model.box_links.shape[0]):
-        center, r = box_frame(model, rotations, translations, b)
-        out[b, 0], out[b, 1], out[b, 2] = center
-        out[b, 3], out[b, 4], out[b, 5], out[b, 6] = quaternion_from_rotation(*r)
+        out[b, 0], out[b, 1], out[b, 2] = box_center(model, rotations, translations, b)
+        out[b, 3], out[b, 4], out[b, 5], out[b, 6] = box_quaternion(model, quaternions, b)
 
 
 @inlined_kernel
@@ -663,17 +694,22 @@ def box_frame(model, rotations, translations, b):
 def box_center(model, rotations, translations, b):
     """Return box b's centre (3-tuple) from the link frames.
 
-    Indexed entry by entry, never through a row view: each view of an array costs a
-    reference count, more than the arithmetic here.
+    Indexed entry by entry, never through a row view or a name bound to an array: each costs
+    a reference count, more than the arithmetic here.
     """
+    return _moved(rotations, translations, model.box_links[b],
+                  (model.box_translations[b, 0], model.box_translations[b, 1],
+                   model.box_translations[b, 2]))
+
+
+@inlined_kernel
+def box_quaternion(model, quaternions, b):
+    """Return box b's quaternion (x, y, z, w) from the link frames' quaternions."""
     link = model.box_links[b]
-    t = model.box_translations
-    return (translations[link, 0] + rotations[link, 0, 0] * t[b, 0]
-            + rotations[link, 0, 1] * t[b, 1] + rotations[link, 0, 2] * t[b, 2],
-            translations[link, 1] + rotations[link, 1, 0] * t[b, 0]
-            + rotations[link, 1, 1] * t[b, 1] + rotations[link, 1, 2] * t[b, 2],
-            translations[link, 2] + rotations[link, 2, 0] * t[b, 0]
-            + rotations[link, 2, 1] * t[b, 1] + rotations[link, 2, 2] * t[b, 2])
+    return quaternion_product((quaternions[link, 0], quaternions[link, 1],
+                               quaternions[link, 2], quaternions[link, 3]),
+                              (model.box_quaternions[b, 0], model.box_quaternions[b, 1],
+                               model.box_quaternions[b, 2], model.box_quaternions[b, 3]))
 
 
 @inlined_kernel
@@ -711,6 +747,10 @@ def unpack_model(ints, floats):
     f += 3 * links
     origin_rotations = view(floats, f, (links, 3, 3))
     f += 9 * links
+    origin_quaternions = view(floats, f, (links, 4))
+    f += 4 * links
+    turn_quaternions = view(floats, f, (links, 4))
+    f += 4 * links
     axes = view(floats, f, (links, 3))
     f += 3 * links
     multipliers, offsets = view(floats, f, (links,)), view(floats, f + links, (links,))
@@ -721,12 +761,15 @@ def unpack_model(ints, floats):
     f += 3 * boxes
     box_rotations = view(floats, f, (boxes, 3, 3))
     f += 9 * boxes
+    box_quaternions = view(floats, f, (boxes, 4))
+    f += 4 * boxes
     half_extents = view(floats, f, (boxes, 3))
     f += 3 * boxes
     motion_radii = view(floats, f, (boxes, dof))
-    return RobotModel(order, parents, origin_translations, origin_rotations, joint_types, axes,
-                      q_indices, multipliers, offsets, joint_limits, box_links,
-                      box_translations, box_rotations, half_extents, motion_radii)
+    return RobotModel(order, parents, origin_translations, origin_rotations,
+                      origin_quaternions, turn_quaternions, joint_types, axes, q_indices,
+                      multipliers, offsets, joint_limits, box_links, box_translations,
+                      box_rotations, box_quaternions, half_extents, motion_radii)
 
 
 @inlined_kernel
@@ -737,7 +780,7 @@ def packed_sizes(ints):
     follows the model here.
     """
     links, boxes, dof = ints[0], ints[1], ints[2]
-    return 3 + 4 * links + boxes, 17 * links + 2 * dof + (15 + dof) * boxes
+    return 3 + 4 * links + boxes, 25 * links + 2 * dof + (19 + dof) * boxes
 
 
 @inlined_kernel
@@ -755,15 +798,18 @@ def write_box(b, center, r, half, centers, rotations, extents):
 
 @kernel
 def link_frames(model):
-    """Return scratch (rotations (L, 3, 3), translations (L, 3)) for :func:`forward_kinematics`."""
+    """Return scratch (rotations (L, 3, 3), translations (L, 3), quaternions (L, 4)).
+
+    For :func:`link_transforms` and :func:`forward_kinematics`.
+    """
     count = model.parents.shape[0]
-    return np.empty((count, 3, 3)), np.empty((count, 3))
+    return np.empty((count, 3, 3)), np.empty((count, 3)), np.empty((count, 4))
 
 
 @kernel
 def box_poses_of_states(model, base_pose, states, out):
     """Write the box poses of each state (K, dof) into ``out`` (K, B, 7)."""
-    count = model.parents.shape[0]
-    rotations, translations = np.empty((count, 3, 3)), np.empty((count, 3))
+    rotations, translations, quaternions = link_frames(model)
     for k in range(states.shape[0]):
-        forward_kinematics(model, base_pose, states[k], out[k], rotations, translations)
+        forward_kinematics(model, base_pose, states[k], out[k], rotations, translations,
+                           quaternions)

@@ -139,8 +139,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
     model = unpack_model(model_ints, model_floats)
     dof = waypoints.shape[1]
     found = np.full((waypoints.shape[0] - 1, len(pairs)), -1.0)
-    link_rotations, link_translations = link_frames(model)
-    scratch = (np.empty(dof), link_rotations, link_translations)  # q and the link frames
+    scratch = (np.empty(dof),) + link_frames(model)  # q and the link frames
     # The boxes at the segment's start (its first waypoint), end and current configuration,
     # each placed when a pair needs it: the end's placement is the next segment's start.
     start = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())  # ``boxes`` stays unwritten
@@ -273,10 +272,10 @@ def _place_waypoint(model, base_pose, waypoints, frames, k, scratch, boxes):
 @kernel
 def _place(model, base_pose, start, end, s, scratch, boxes):
     """Write the robot's boxes at q(s) = start + s (end - start) into rows 0..B-1 of boxes."""
-    q, link_rotations, link_translations = scratch
+    q, link_rotations, link_translations, link_quaternions = scratch
     for j in range(q.shape[0]):
         q[j] = start[j] + s * (end[j] - start[j])
-    link_transforms(model, base_pose, q, link_rotations, link_translations)
+    link_transforms(model, base_pose, q, link_rotations, link_translations, link_quaternions)
     _write_robot_boxes(model, link_rotations, link_translations, boxes)
 
 

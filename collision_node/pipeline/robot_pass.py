@@ -45,9 +45,8 @@ from collision_node.pipeline.flat_views import copy_into, view
 from collision_node.pipeline.frames import matrix
 from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORDINATE,
                                          NON_FINITE_POSE, OUT_OF_RANGE, TIE_ULPS, VALID)
-from collision_node.pipeline.robot import (box_center, box_rotation, link_transforms,
-                                           NO_INDEX, packed_sizes, quaternion_from_rotation,
-                                           unpack_model)
+from collision_node.pipeline.robot import (box_center, box_quaternion, link_transforms,
+                                           NO_INDEX, packed_sizes, unpack_model)
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
 from collision_node.pipeline.stats import one_pass_stats, Result
@@ -141,12 +140,15 @@ class RobotRows:
 
         ``start``: the time.perf_counter() at which the check began, for its stats.
         """
-        floats, ints = self._workspaces[0]
-        contacts, (passed, sat_tests), state, _, _, invalid = check_robot_states(
-            q[None], floats, ints, 0, 1, *NO_FRAMES)
+        contacts, (passed, sat_tests), state, _, _, invalid = self.check_state(q)
         if state >= 0 or invalid:
             return None
         return self.result(contacts, passed, sat_tests, 1e3 * (time.perf_counter() - start), 1)
+
+    def check_state(self, q):
+        """Return check_robot_states' answer for one state ``q`` (dof,), C-contiguous float64."""
+        floats, ints = self._workspaces[0]
+        return check_robot_state(q, floats, ints)
 
     def check(self, states, first_state, stop_state, frames=None, chunk=0):
         """Return check_robot_states' answer for states ``[first_state, stop_state)``.
@@ -212,8 +214,8 @@ def check_robot_states(states, floats, ints, first_state, stop_state, frame_rota
     model = unpack_model(ints, floats)
     count = model.half_extents.shape[0]
     (base_pose, settings, bounds, pairs, keys, centers, rotations, extents, aabbs, radii,
-     margins, link_rotations, link_translations, depth, normal, point, oriented,
-     candidates) = _views(floats, ints)
+     margins, link_rotations, link_translations, link_quaternions, depth, normal, point,
+     oriented, candidates) = _views(floats, ints)
     pad = settings[PAD]
     # The rounding the culls allow: one bound per state on what obb.spheres_apart allows each
     # pair (64 ulps of the radii, extents and coordinates), so that a cull is a few flops.
@@ -233,7 +235,8 @@ def check_robot_states(states, floats, ints, first_state, stop_state, frame_rota
                 return _failed(state, NON_FINITE_JOINT, NON_FINITE_POSE, 0)
         if len(frame_rotations):
             link_rotations, link_translations = frame_rotations[state], frame_translations[state]
-        link_transforms(model, base_pose, q, link_rotations, link_translations)
+        link_transforms(model, base_pose, q, link_rotations, link_translations,
+                        link_quaternions)
         farthest = farthest_static
         for b in range(count):
             c = box_center(model, link_rotations, link_translations, b)
@@ -267,8 +270,8 @@ def check_robot_states(states, floats, ints, first_state, stop_state, frame_rota
             for box in (a, b):
                 if box < count and oriented[box] != state:
                     oriented[box] = state
-                    _orient(box, box_rotation(model, link_rotations, box), centers, rotations,
-                            aabbs, model.half_extents, pad)
+                    _orient(box, box_quaternion(model, link_quaternions, box), centers,
+                            rotations, aabbs, model.half_extents, pad)
             if not aabbs_overlap(aabbs, a, b):
                 continue
             candidates[n, 0], candidates[n, 1], candidates[n, 2] = a, b, p
@@ -298,6 +301,18 @@ def check_robot_states(states, floats, ints, first_state, stop_state, frame_rota
 
 
 @kernel
+def check_robot_state(q, floats, ints):
+    """Return :func:`check_robot_states`' answer for one state ``q`` (dof,), frames not kept.
+
+    Entered with three arguments, not seven: numba unboxes each argument on every call, and
+    for one state that is a tenth of the call. (The state range as int64 values, not
+    constants: _jit, "Constant arguments".)
+    """
+    return check_robot_states(view(q, 0, (1, q.shape[0])), floats, ints, np.int64(0),
+                              np.int64(1), np.empty((0, 0, 3, 3)), np.empty((0, 0, 3)))
+
+
+@kernel
 def _failed(state, box, code, invalid):
     """Return check_robot_states' answer for a state that failed."""
     return np.empty(0, STATE_CONTACT_DTYPE), (0, 0), state, box, code, invalid
@@ -320,7 +335,7 @@ def _workspace(model_ints, model_floats, base_pose, pairs, keys, settings, stati
     links, most = model.parents.shape[0], pairs.shape[0]
     rows = count + n_static
     model_int_count, model_float_count = packed_sizes(model_ints)
-    floats = np.zeros(model_float_count + ROWS + rows * ROW_FLOATS + links * 12 + most * 7)
+    floats = np.zeros(model_float_count + ROWS + rows * ROW_FLOATS + links * 16 + most * 7)
     ints = np.zeros(model_int_count + 2 + most * 5 + count + most * 3, np.int64)
     copy_into(floats[:model_float_count], model_floats)
     copy_into(ints[:model_int_count], model_ints)
@@ -394,26 +409,28 @@ def _views(floats, ints):
     at += links * 9
     link_translations = view(floats, at, (links, 3))
     at += links * 3
+    link_quaternions = view(floats, at, (links, 4))
+    at += links * 4
     depth = view(floats, at, (most,))
     at += most
     normal = view(floats, at, (most, 3))
     point = view(floats, at + most * 3, (most, 3))
     return (base_pose, settings, bounds, pairs, keys, centers, rotations, extents, aabbs,
-            radii, margins, link_rotations, link_translations, depth, normal, point, oriented,
-            candidates)
+            radii, margins, link_rotations, link_translations, link_quaternions, depth, normal,
+            point, oriented, candidates)
 
 
 @kernel
-def _orient(b, r, centers, rotations, aabbs, half_extents, pad):
+def _orient(b, quaternion, centers, rotations, aabbs, half_extents, pad):
     """Write robot box b's rotation and AABB as a step makes them from its pose.
 
-    ``r`` its rotation from the link frames (robot.box_rotation): its pose holds the
-    quaternion of it (robot.forward_kinematics), and a step turns that quaternion back into
-    the rotation the SAT tests (obb.box_axes); the AABB padded as the one pass pads a body's.
+    ``quaternion`` its pose's (robot.box_quaternion, as robot.forward_kinematics writes it):
+    a step turns it into the rotation the SAT tests (obb.box_axes); the AABB padded as the
+    one pass pads a body's.
     """
     c = (centers[b, 0], centers[b, 1], centers[b, 2])
     h = (half_extents[b, 0], half_extents[b, 1], half_extents[b, 2])
-    axes, reach = box_axes(c + quaternion_from_rotation(*r), h)
+    axes, reach = box_axes(c + quaternion, h)
     for m in range(3):
         for n in range(3):
             rotations[b, m, n] = axes[3 * m + n]

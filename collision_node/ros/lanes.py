@@ -12,7 +12,7 @@ A next message whose bytes there are the same is read in one kernel:
 * :class:`PoseLane` reads the poses into an aligned array: the node steps the World on them
   as on the full way's (which validates every pose, so the lane reads only the layout);
 * :class:`JointLane` reads the positions and merges them into the joint values; then the
-  robot's pass (robot_pass.RobotRows.check, which World.check_joints runs) checks them.
+  robot's pass (robot_pass.RobotRows.check_state, as World.check_joints runs it) checks them.
 
 A lane never refuses: a message it cannot answer exactly as the full way would (another
 layout, big-endian CDR, lengths or values the full way refuses, a joint still without a
@@ -116,8 +116,7 @@ class JointLane:
                                              self._name_count, entries, indices, values, known)
         if not merged:
             return None
-        contacts, (passed, sat_tests), state, _, _, invalid = rows.check(
-            values.reshape(1, -1), 0, 1)
+        contacts, (passed, sat_tests), state, _, _, invalid = rows.check_state(values)
         return None if state >= 0 or invalid else (contacts, passed, sat_tests, sec, nanosec)
 
 
