@@ -91,6 +91,20 @@ def cross(u, v):
 
 
 @kernel
+def squared_distance_outside(d, r, e):
+    """Return the squared distance from a box to the point ``d`` from its centre (0 inside).
+
+    ``r`` the box's rotation (row-major 9-tuple), ``e`` its half extents, ``d`` in the world's
+    axes: the part of each coordinate in the box's frame beyond the half extent. A sign of d
+    changes nothing (the box is symmetric).
+    """
+    x = max(abs(r[0] * d[0] + r[3] * d[1] + r[6] * d[2]) - e[0], 0.0)
+    y = max(abs(r[1] * d[0] + r[4] * d[1] + r[7] * d[2]) - e[1], 0.0)
+    z = max(abs(r[2] * d[0] + r[5] * d[1] + r[8] * d[2]) - e[2], 0.0)
+    return x * x + y * y + z * z
+
+
+@kernel
 def sum_abs(v):
     """Return the sum of the absolute values of a 3-tuple."""
     return abs(v[0]) + abs(v[1]) + abs(v[2])

@@ -42,7 +42,7 @@ import numpy as np
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE, STATIC, write_contact
 from collision_node.pipeline.flat_views import copy_into, view
-from collision_node.pipeline.frames import matrix
+from collision_node.pipeline.frames import matrix, squared_distance_outside
 from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORDINATE,
                                          NON_FINITE_POSE, OUT_OF_RANGE, TIE_ULPS, VALID)
 from collision_node.pipeline.robot import (box_center, box_quaternion, link_transforms,
@@ -447,11 +447,7 @@ def _beyond_box(d, r, e, reach):
     it of a robot box's centre with ``reach`` its radius (padded by half the margin), the
     other half and the static box's own margin, and the rounding allowed.
     """
-    x = abs(r[0] * d[0] + r[3] * d[1] + r[6] * d[2]) - e[0]
-    y = abs(r[1] * d[0] + r[4] * d[1] + r[7] * d[2]) - e[1]
-    z = abs(r[2] * d[0] + r[5] * d[1] + r[8] * d[2]) - e[2]
-    x, y, z = max(x, 0.0), max(y, 0.0), max(z, 0.0)
-    return x * x + y * y + z * z > reach * reach
+    return squared_distance_outside(d, r, e) > reach * reach
 
 
 @kernel
