@@ -158,9 +158,14 @@ def test_the_lifecycle_script_configures_and_activates_a_waiting_node(tmp_path):
     try:
         done = subprocess.run([sys.executable, 'manager.py'], cwd=tmp_path, env=env,
                               capture_output=True, text=True, timeout=START_TIMEOUT_S)
+    except subprocess.TimeoutExpired as timeout:  # say how far it came
+        done = timeout
     finally:
         stopped = stop_process(node, STOP_TIMEOUT_S)
     log = (tmp_path / 'node.log').read_text()
+    assert not isinstance(done, subprocess.TimeoutExpired), \
+        'the script printed %r, then waited %d s; node log:\n%s' % (
+            done.stdout, START_TIMEOUT_S, log)
     assert done.returncode == 0, done.stderr + log
     assert done.stdout == expected
     assert stopped == 0 and 'Traceback' not in log, log
