@@ -1,5 +1,8 @@
 """Two boxes seen from box A: the relative pose, and the tuple arithmetic of per-pair kernels.
 
+Also the tuple arithmetic of frames: quaternion products and rotations (the robot's forward
+kinematics, a pose's box), and a point's distance outside a box (the robot's culls and bounds).
+
 Per-pair kernels (sat.py, distance.py) work in the frame of a pair's first box A: R = AᵀB as a
 row-major 9-tuple, R[3i + j] = a_i·b_j (column j is B's axis j in A's frame), and
 t = Aᵀ(c_B − c_A), B's centre in A's frame. Working relative to A keeps the numbers as small
