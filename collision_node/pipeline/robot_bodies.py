@@ -33,8 +33,8 @@ import numpy as np
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE
 from collision_node.pipeline.distance import box_distance
-from collision_node.pipeline.frames import (dot, matrix, relative_pose,
-                                            squared_distance_outside, sum_abs)
+from collision_node.pipeline.frames import (matrix, relative_pose, squared_distance_outside,
+                                            sum_abs)
 from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS
 from collision_node.pipeline.robot import (box_frame, box_poses_of_states, IDENTITY_POSE,
                                            link_frames, link_transforms, pack_model,
@@ -196,7 +196,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
                 enough = margins[p] + max(motion, resolution)
                 bound = _sphere_gap(start[0], radii, a, b)
                 if bound <= enough:
-                    bound = _clearance(start, a, b, bound, enough, exact)
+                    bound = _clearance(start, radii, a, b, bound, enough, exact)
             measured[p] = False
             free = bound - margins[p]
             if free > motion:
@@ -213,7 +213,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
             enough = margins[p] + motion * (1.0 - cleared[p])
             bound = _sphere_gap(end[0], radii, a, b)
             if bound <= enough:
-                bound = _clearance(end, a, b, bound, enough, exact)
+                bound = _clearance(end, radii, a, b, bound, enough, exact)
             free = bound - margins[p]
             # The next segment starts here: a pair its credit leaves untested takes this
             # bound (the exact distance when the spheres and the SAT fell short) as its test.
@@ -242,7 +242,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
                 enough = margins[p] + max(motion * (from_end[p] - s), resolution)
                 bound = _sphere_gap(at[0], radii, a, b)
                 if bound <= enough:
-                    bound = _clearance(at, a, b, bound, enough, stopped)
+                    bound = _clearance(at, radii, a, b, bound, enough, stopped)
                 free = bound - margins[p]
                 if stopped and free <= resolution:
                     found[k, p] = s
@@ -309,13 +309,13 @@ def _sphere_gap(centers, radii, a, b):
 
 
 @kernel
-def _clearance(boxes, a, b, gap, enough, exact):
+def _clearance(boxes, radii, a, b, gap, enough, exact):
     """Return a lower bound on the distance between boxes a and b, rounding counted against it.
 
     For a pair whose spheres' ``gap`` falls short of ``enough``: each box's sphere against the
     other box, then the SAT's widest separating gap (with ``enough`` as its margin; the first
     gap past it ends the test), then, if ``exact``, the exact distance; the first that
-    reaches ``enough`` answers. An overlap gives 0.
+    reaches ``enough`` answers. An overlap gives 0. ``radii``: each box's half diagonal.
     """
     centers, rotations, extents = boxes
     ea = (extents[a, 0], extents[a, 1], extents[a, 2])
@@ -326,8 +326,8 @@ def _clearance(boxes, a, b, gap, enough, exact):
     ra, rb = matrix(rotations, a), matrix(rotations, b)
     # Each box's sphere against the other box (every point of a box lies within its half
     # diagonal of its centre): a few flops that prove most pairs the spheres alone do not.
-    spheres = max(math.sqrt(squared_distance_outside(d, ra, ea)) - math.sqrt(dot(eb, eb)),
-                  math.sqrt(squared_distance_outside(d, rb, eb)) - math.sqrt(dot(ea, ea)))
+    spheres = max(math.sqrt(squared_distance_outside(d, ra, ea)) - radii[b],
+                  math.sqrt(squared_distance_outside(d, rb, eb)) - radii[a])
     if spheres - tie > enough:
         return max(gap, spheres - tie)
     rel, t = relative_pose(ra, rb, d)

@@ -263,9 +263,13 @@ def check_robot_states(states, floats, ints, first_state, stop_state, frame_rota
                         and aabbs[b, 0, 1] - reach <= centers[a, 1] <= aabbs[b, 1, 1] + reach
                         and aabbs[b, 0, 2] - reach <= centers[a, 2] <= aabbs[b, 1, 2] + reach):
                     continue
-                if _beyond_box(d, matrix(rotations, b),
-                               (extents[b, 0], extents[b, 1], extents[b, 2]),
-                               reach + pad + margins[b]):
+                # The robot box's centre farther outside the static box than its radius (padded
+                # by half the margin), the other half, the static box's own margin and the
+                # rounding allowed.
+                beyond = reach + pad + margins[b]
+                if squared_distance_outside(d, matrix(rotations, b),
+                                            (extents[b, 0], extents[b, 1], extents[b, 2])) \
+                        > beyond * beyond:
                     continue
             for box in (a, b):
                 if box < count and oriented[box] != state:
@@ -436,18 +440,6 @@ def _orient(b, quaternion, centers, rotations, aabbs, half_extents, pad):
             rotations[b, m, n] = axes[3 * m + n]
         aabbs[b, 0, m] = c[m] - reach[m] - pad
         aabbs[b, 1, m] = c[m] + reach[m] + pad
-
-
-@kernel
-def _beyond_box(d, r, e, reach):
-    """Whether the point ``d`` from a box's centre lies farther than ``reach`` outside it.
-
-    ``r`` the box's rotation (row-major 9-tuple), ``e`` its half extents: the distance is that
-    of the part of each coordinate in the box's frame beyond the half extent. The culls ask
-    it of a robot box's centre with ``reach`` its radius (padded by half the margin), the
-    other half and the static box's own margin, and the rounding allowed.
-    """
-    return squared_distance_outside(d, r, e) > reach * reach
 
 
 @kernel
