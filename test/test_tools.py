@@ -27,6 +27,8 @@ from collision_node.tools.collision_monitor import format_status
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOMAIN_ID = random.randint(1, 200)  # this module's own DDS domain: no cross-talk
 TOOL_TIMEOUT_S = 60.0  # a process start imports rclpy and numpy: seconds on a busy machine
+LISTENING = 'collision_monitor: listening to 1 collisions publisher(s); waiting up to %g s ' \
+    'for an answer'
 RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                       reliability=ReliabilityPolicy.RELIABLE)
 
@@ -247,17 +249,50 @@ def test_collision_monitor_once_skips_other_nodes_statuses(ros):
     other = monitor_status(name='battery_monitor: charge')
     code, output, errors = run_monitor_once(ros, monitor_cloud(), other, None, '--timeout', '3')
     assert code == 1 and 'diagnostics' not in output
-    assert errors == 'collision_monitor: no status of the node after the collisions message ' \
-        'within 3 s\n'
+    assert errors.splitlines() == [
+        LISTENING % 3,
+        'collision_monitor: no status of the node after the collisions message within 3 s']
 
 
 def test_collision_monitor_once_gives_up_after_its_timeout(ros):
     started = time.monotonic()
     code, output, errors = run_monitor_once(ros, None, None, None, '--timeout', '2')
     assert code == 1 and output == ''
-    assert errors == 'collision_monitor: no collisions message within 2 s (is collision_node ' \
-        'running, and did an input reach it?)\n'
+    assert errors.splitlines() == [
+        LISTENING % 2,
+        'collision_monitor: no collisions message within 2 s of matching its publisher (did '
+        'an input reach collision_node?)']
     assert time.monotonic() - started < 2.0 + TOOL_TIMEOUT_S / 2  # a process start on top
+
+
+def test_collision_monitor_once_gives_up_without_a_publisher():
+    """No node in the domain: the wait counts from the monitor's start."""
+    started = time.monotonic()
+    done = run_tool('collision_monitor', '--once', '--timeout', '2', '--ros-args', '-r',
+                    'collisions:=/no_node_publishes_this')
+    assert done.returncode == 1 and done.stdout == ''
+    assert done.stderr == 'collision_monitor: no collisions publisher matched within 2 s (is ' \
+        'collision_node running, in this ROS domain?)\n'
+    assert time.monotonic() - started < 2.0 + TOOL_TIMEOUT_S / 2
+
+
+def test_collision_monitor_once_waits_from_the_publishers_match(ros):
+    """A node that starts late (compiling its kernels) is waited for: the timeout restarts."""
+    node, executor = ros
+    process = start_tool('collision_monitor', '--once', '--timeout', '3')
+    assert spin_until(executor, lambda: node.count_subscribers('/collisions') > 0)
+    spin_until(executor, lambda: False, timeout_s=2.0)  # most of the wait, no publisher
+    cloud_publisher = node.create_publisher(PointCloud2, 'collisions', RELIABLE)
+    matched = time.monotonic()
+    try:
+        spin_until(executor, lambda: process.poll() is not None)
+        output, errors = process.communicate(timeout=TOOL_TIMEOUT_S)
+    finally:
+        process.kill()
+        node.destroy_publisher(cloud_publisher)
+    assert process.returncode == 1
+    assert errors.splitlines()[0] == LISTENING % 3
+    assert time.monotonic() - matched > 2.5  # 3 s from the match, not 1 s
 
 
 def test_collision_monitor_writes_a_line_break_in_a_value_as_backslash_n():

@@ -10,13 +10,16 @@ name and message, then one ``key=value`` line per value, so that grep finds any 
 
 ``--once`` prints the first collisions message, then the first status of the node
 (``<name>: collision_check``) published after it, which describes that answer: a status from
-before the answer may still be the ERROR of the time before any input came. It gives up after
-``--timeout`` seconds with exit status 1.
+before the answer may still be the ERROR of the time before any input came. When the node's
+``collisions`` publisher is matched, it says so on standard error; it gives up ``--timeout``
+seconds after that (or after its own start, when no publisher ever matches) with exit status 1,
+so a node that first compiles its kernels for minutes is waited for.
 """
 import argparse
 import sys
 
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
@@ -72,12 +75,24 @@ class CollisionMonitor(Node):
         # Reliable to match the node's outputs; depth 10 because only the latest is shown.
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                          reliability=ReliabilityPolicy.RELIABLE)
-        self.create_subscription(PointCloud2, 'collisions', self.on_collisions, qos)
+        events = SubscriptionEventCallbacks(matched=self.on_matched) if once else None
+        self.create_subscription(PointCloud2, 'collisions', self.on_collisions, qos,
+                                 event_callbacks=events)
         self.create_subscription(DiagnosticArray, '/diagnostics', self.on_diagnostics, qos)
         if once:
             self.timeout_timer = self.create_timer(timeout_s, self.give_up)
+            self.matched = False
         else:
             self.create_timer(period_s, self.print_collisions)
+
+    def on_matched(self, status):
+        """Restart the wait when the first publisher of ``collisions`` is matched."""
+        if status.current_count > 0 and not self.matched:
+            self.matched = True
+            self.timeout_timer.reset()
+            print('collision_monitor: listening to %d collisions publisher(s); waiting up to '
+                  '%g s for an answer' % (status.current_count, self.timeout_s),
+                  file=sys.stderr, flush=True)
 
     def on_collisions(self, msg):
         self.latest_cloud = msg
@@ -123,9 +138,12 @@ class CollisionMonitor(Node):
     def give_up(self):
         if self.printed_cloud:
             problem = 'no status of the node after the collisions message within %g s'
+        elif self.matched:
+            problem = 'no collisions message within %g s of matching its publisher (did an ' \
+                'input reach collision_node?)'
         else:
-            problem = 'no collisions message within %g s (is collision_node running, and did ' \
-                'an input reach it?)'
+            problem = 'no collisions publisher matched within %g s (is collision_node running, ' \
+                'in this ROS domain?)'
         print('collision_monitor: ' + problem % self.timeout_s, file=sys.stderr, flush=True)
         self.finish(1)
 
@@ -144,8 +162,9 @@ def parse_arguments(argv):
                         help="print the next collisions message and the node's status after "
                         'it, then exit')
     parser.add_argument('--timeout', type=float, default=ONCE_TIMEOUT_S, metavar='S',
-                        help='with --once: give up after S seconds, exit status 1 (default: '
-                        '%g)' % ONCE_TIMEOUT_S)
+                        help="with --once: give up S seconds after the node's collisions "
+                        'publisher matched (or after the start, if none does), exit status 1 '
+                        '(default: %g)' % ONCE_TIMEOUT_S)
     parser.add_argument('--period', type=float, default=1.0, metavar='S',
                         help='seconds between collisions lines (default: 1)')
     parser.add_argument('--contacts', type=int, default=5, metavar='N',
