@@ -562,6 +562,35 @@ def test_motion_radii_bound_every_corner(name, own, ament_prefix):
         assert radii[robot.box_links.index('twin'), index] == pytest.approx(2.0)
 
 
+@pytest.mark.parametrize('name', ['own', *sorted(REFERENCE_ROBOTS)])
+def test_the_chord_bound_holds_every_corner_on_whole_segments_and_pieces(name, own,
+                                                                         ament_prefix):
+    """A corner strays from the chord between its ends by at most h^2 / 8 times its bend."""
+    robot = own[0] if name == 'own' else reference_robot(name)
+    turns, reach = robot.chord_turns, robot.chord_reach
+    assert turns.shape == (len(robot.box_links), robot.dof) and (turns >= 0).all()
+    assert (reach >= 0).all() and np.array_equal(turns > 0, robot.model.motion_radii > 0)
+    rng = np.random.default_rng(15)
+    steps = np.linspace(0.0, 1.0, 201)
+    tightest = 0.0
+    limits = np.clip(robot.joint_limits, -UNLIMITED_RANGE, UNLIMITED_RANGE)
+    for size in (0.05, 0.5, 3.0):  # short segments to long ones, within the limits
+        for _ in range(6):
+            q0 = random_q(robot, rng)
+            q1 = np.clip(q0 + rng.uniform(-size, size, robot.dof), limits[:, 0], limits[:, 1])
+            points = corners(robot, robot.box_poses(q0 + steps[:, None] * (q1 - q0)))
+            bend = reach * (np.abs(q1 - q0) @ turns.T) ** 2  # (B,)
+            for first, last in ((0, 200), (50, 150), (180, 200)):  # the segment and pieces
+                s = steps[first:last + 1, None, None, None]
+                h = steps[last] - steps[first]
+                chord = points[first] + (s - steps[first]) / h * (points[last] - points[first])
+                strayed = np.linalg.norm(points[first:last + 1] - chord, axis=-1).max(axis=(0, 2))
+                bound = h * h / 8.0 * bend
+                assert (strayed <= bound * (1 + 1e-9) + 1e-12).all(), (name, size, first)
+                tightest = max(tightest, (strayed / np.maximum(bound, 1e-300)).max())
+    assert tightest > 0.2  # a bound, not a wild one: some corner comes near it
+
+
 def common_ancestor(parents, first, second):
     """Return the nearest link at or above both links (a plain walk, as a reference)."""
     above_first = [first]

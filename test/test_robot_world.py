@@ -172,6 +172,59 @@ def test_a_crossing_between_collision_free_waypoints_is_reported(panda):
     assert 0.0 < hits['toi'].min() <= first
 
 
+def pole_world(panda, x):
+    world = World()
+    world.set_static([[x, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0]], [[0.01, 0.01, 0.6]])
+    world.set_robot(panda)
+    return world
+
+
+def box_corners(pose, half):
+    centre, rotation = box_frame(pose)
+    signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
+    return centre + (signs * half) @ rotation.T
+
+
+def nearest_to_pole(panda, x, states):
+    """Return the least signed distance from any box to the pole at ``x`` over ``states``."""
+    centre, rotation = box_frame(np.array([x, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0]))
+    return min(signed_distance(*box_frame(pose), half, centre, rotation,
+                               np.array([0.01, 0.01, 0.6])).distance
+               for poses in panda.box_poses(states)
+               for pose, half in zip(poses, panda.half_extents))
+
+
+@pytest.mark.parametrize('gap', [0.003, -0.001])
+def test_an_arm_sweeping_past_a_pole_within_millimetres(panda, gap):
+    """Free 3 mm past it: nothing reported; 1 mm into it: reported, at or before contact.
+
+    The arm turns about its base by 1.2 rad, its hand 0.5 m out: tens of centimetres of
+    motion pass millimetres from the pole, where the chords' planes do the proving.
+    """
+    q = np.array([0.0, 0.4, 0.0, -1.5, 0.0, 1.9, 0.8, 0.0])[:panda.dof]
+    left, right = q.copy(), q.copy()
+    left[0], right[0] = -0.6, 0.6
+    dense = left + np.linspace(0.0, 1.0, 601)[:, None] * (right - left)
+    # The pole just beyond the arm's reach, then moved until the sweep's nearest approach is
+    # ``gap``: the reach's corner turns on a circle about the base's axis.
+    corners_at = [corner for pose, half in zip(panda.box_poses(q), panda.half_extents)
+                  for corner in box_corners(pose, half)]
+    x = max(np.hypot(c[0], c[1]) for c in corners_at) + 0.01 + gap
+    for _ in range(3):
+        x += gap - nearest_to_pole(panda, x, dense)
+    assert nearest_to_pole(panda, x, dense) == pytest.approx(gap, abs=1e-4)
+    world = pole_world(panda, x)
+    waypoints = np.array([left, right])
+    assert len(world.check_joints(waypoints).contacts) == 0
+    hits = world.check_trajectory(waypoints, resolution=0.001).contacts
+    if gap > 0.0:
+        assert len(hits) == 0
+    else:
+        sampled = first_sampled_collisions(world, panda, left, right, 1201)
+        assert sampled and len(hits)
+        assert 0.0 < hits['toi'].min() <= min(sampled.values())
+
+
 def box_frame(pose):
     x, y, z, w = pose[3:]
     return np.array(pose[:3]), np.array([

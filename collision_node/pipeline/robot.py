@@ -65,6 +65,19 @@ ancestor, move only by the joints below it (the ones above move both as one, whi
 distance between them): their pair's radii sum each box's over those joints alone
 (Robot.pair_motion_radii), much less than the two boxes' motion_radii for neighbours far
 from the root.
+
+Chord bound (``chord_turns``, ``chord_reach``). On the same straight segment a point p of box
+b strays from the chord between its two ends by at most |p''| / 8 (for a piece of length h of
+the segment: h² |p''| / 8, the interpolation error of a C² curve). p'' = sum over chain joints
+k, l of (m_k dq_k)(m_l dq_l) d²p/dθ_k dθ_l, and each such second derivative is at most the
+reach of the lower of the two joints (a turning joint below: its a × (p - o) turned by the
+upper one, at most |p - o|; a sliding one below: its turned axis, at most 1; a sliding one
+above: 0). So |p''| <= chord_reach[b] (sum_j |dq_j| chord_turns[b, j])², with chord_turns[b, j]
+the sum of |m_k| over the chain joints k driven by q_j and chord_reach[b] the largest reach of
+a turning joint of the chain (at least 1 when one slides). A robot that turns by 0.3 rad over
+a segment, 1 m from the axis, strays 1.1 cm from the chord, against 30 cm of motion: two boxes
+on one side of a fixed plane at both ends of a piece, farther than that, stay on it between
+(robot_bodies.first_uncleared_pieces).
 """
 import math
 from typing import NamedTuple
@@ -162,6 +175,7 @@ class Robot:
         self.joint_limits = model.joint_limits
         self.allowed_box_pairs = _allowed_box_pairs(self.box_links, disabled_link_pairs)
         self._travels = travels  # per link: the largest |value| of its prismatic joint
+        self.chord_turns, self.chord_reach = _chord_bound(model, travels)
         self._center_gaps = {}  # (box a, box b): center_gaps, once asked
 
     @classmethod
@@ -477,6 +491,21 @@ def _common_ancestor(parents, first, second):
     while second not in chain:
         second = parents[second]
     return second
+
+
+def _chord_bound(model, travels):
+    """Return (chord_turns (B, dof), chord_reach (B,)): the module docstring's Chord bound."""
+    turns = np.zeros((len(model.box_links), len(model.joint_limits)))
+    reach = np.zeros(len(model.box_links))
+    for box in range(len(model.box_links)):
+        start = np.linalg.norm(model.box_translations[box]) \
+            + np.linalg.norm(model.half_extents[box])
+        for link, walked in _walk_up(model, travels, box, NO_INDEX, start):
+            kind = model.joint_types[link]
+            if kind != FIXED:
+                turns[box, model.q_indices[link]] += abs(model.multipliers[link])
+                reach[box] = max(reach[box], walked if kind == REVOLUTE else 1.0)
+    return turns, reach
 
 
 def _chain_radii(model, travels, box, above):

@@ -14,23 +14,33 @@ below their links' common ancestor count: the joints above it move both as one).
 configuration where the pair is ``clearance`` farther apart than its margin proves the pair
 free on every configuration within clearance / motion of it on the segment.
 
-The proof is conservative advancement. The waypoints at both ends are placed once (each is
-the end of one segment and the start of the next); a pair whose clearance at the start
-covers the whole segment, or whose clearances at the two ends meet, is free. Otherwise the
-boxes are placed where the least proven pair stops being proven, and every waiting pair's
-proof grows from there: bounding spheres, then the separating axis test's widest gap, and for
-the pairs stopped there the exact distance. A stopped pair whose exact clearance is at most
-``resolution`` is reported, with ``toi`` that configuration. So a segment is reported only when
-a configuration on it comes within ``resolution`` of the pair's margin (colliding, with margin
-0, or within ``resolution`` of it), and every segment with a colliding configuration is
-reported: nothing between waypoints is missed. A sampled check (MoveIt's, at its waypoints or at
-a fixed step) promises neither.
+The proof is conservative advancement, with a second bound for the pairs that pass near. The
+waypoints at both ends are placed once (each is the end of one segment and the start of the
+next); a pair whose clearance at the start covers the whole segment, or whose clearances at
+the two ends meet, is free. For the pairs left, a piece of the segment from s0 (where all of
+them are proven so far) to s is proven at once when, for each pair, one fixed plane keeps its
+two boxes farther apart than its margin plus the boxes' bends at both s0 and s: each point of
+a box strays from the chord between its two places by at most its bend, h² / 8 times a bound
+on its second derivative along the segment (robot.py, Chord bound). That bound shrinks with
+the square of the piece, where the motion's shrinks with the piece alone: a box that passes
+a wall 4 mm away is proven in a few pieces, where advancement by clearance over motion takes
+a step per 4 mm of its motion bound (doc/robot.md has a count). The piece tried first reaches the segment's end,
+then halves; when it is no longer than conservative advancement's step, the boxes are placed
+where the least proven pair stops being proven, which needs no plane. At every place taken,
+each waiting pair's proof grows: bounding spheres, then the separating axis test's widest gap,
+then for a pair stopped there with a gap within ``resolution`` of its margin the exact
+distance. A stopped pair whose exact clearance is at most ``resolution`` is reported, with
+``toi`` that configuration. So a segment is reported only when a configuration on it comes
+within ``resolution`` of the pair's margin (colliding, with margin 0, or within ``resolution``
+of it), and every segment with a colliding configuration is reported: nothing between
+waypoints is missed. A sampled check (MoveIt's, at its waypoints or at a fixed step) promises
+neither.
 """
 import math
 
 import numpy as np
 
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE
 from collision_node.pipeline.distance import box_distance
 from collision_node.pipeline.frames import (matrix, relative_pose, squared_distance_outside,
@@ -50,6 +60,8 @@ SHRINK = 1.0 - 1e-12
 # A pair's motion over a segment, rounded up likewise: the credit carried from waypoint to
 # waypoint subtracts it every segment.
 MOTION_SAFETY = 1.0 + 1e-12
+# A box's bend, rounded up likewise (the sums and squares of its bound round).
+CHORD_SAFETY = 1.0 + 1e-12
 
 
 class RobotBodies:
@@ -124,7 +136,7 @@ def segment_contacts(world, bodies, waypoints, exact, found, keys):
 
 @kernel
 def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frames, pairs,
-                           pair_radii, margins, boxes, resolution):
+                           pair_radii, margins, boxes, chord_turns, chord_reach, resolution):
     """Return, per segment and pair, where the first configuration not proven free lies.
 
     ``boxes`` (centers, rotations, extents): rows 0..B-1 for the robot's boxes (placed in
@@ -133,7 +145,8 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
     Robot.pair_motion_radii, ``margins`` (P,) the distance within which each pair counts
     (robot_pass.RobotRows holds all four). ``frames`` the waypoints' link frames
     (rotations (W, L, 3, 3), translations (W, L, 3)) as the waypoints' check kept them
-    (robot_pass.check_robot_states), or none (empty): then they are computed here. Returns
+    (robot_pass.check_robot_states), or none (empty): then they are computed here.
+    ``chord_turns`` (B, dof) and ``chord_reach`` (B,): Robot's, the Chord bound. Returns
     (W - 1, P): s in [0, 1) where the pair comes within ``resolution`` of its margin, or -1
     (the whole segment is proven free). The model as robot.pack_model packs it.
     """
@@ -146,8 +159,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
     start = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())  # ``boxes`` stays unwritten
     end = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     at = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
-    # Not literal constants: _jit, "Constant arguments".
-    first, exact = np.int64(0), np.bool_(True)
+    first = np.int64(0)  # not a literal constant: _jit, "Constant arguments"
     _place_waypoint(model, base_pose, waypoints, frames, first, scratch, start)
     radii = np.sqrt(np.sum(start[2] * start[2], axis=1))  # half diagonals: the boxes' spheres
     start_placed = True
@@ -165,6 +177,8 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
     # Joint by joint, each over every pair: the sums vectorise across pairs (each pair's
     # sum still adds its joints in order).
     radii_by_joint = np.ascontiguousarray(pair_radii.T)
+    robot_boxes = chord_reach.shape[0]
+    bends = np.empty(robot_boxes)  # per box, this segment: the Chord bound's |p''|
     for k in range(waypoints.shape[0] - 1):
         end_placed = False
         waiting = 0
@@ -196,7 +210,8 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
                 enough = margins[p] + max(motion, resolution)
                 bound = _sphere_gap(start[0], radii, a, b)
                 if bound <= enough:
-                    bound = _clearance(start, radii, a, b, bound, enough, exact)
+                    bound = _clearance(start, radii, a, b, bound, enough,
+                                       margins[p] + resolution)
             measured[p] = False
             free = bound - margins[p]
             if free > motion:
@@ -213,36 +228,63 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
             enough = margins[p] + motion * (1.0 - cleared[p])
             bound = _sphere_gap(end[0], radii, a, b)
             if bound <= enough:
-                bound = _clearance(end, radii, a, b, bound, enough, exact)
+                bound = _clearance(end, radii, a, b, bound, enough, margins[p] + resolution)
             free = bound - margins[p]
             # The next segment starts here: a pair its credit leaves untested takes this
-            # bound (the exact distance when the spheres and the SAT fell short) as its test.
+            # bound as its test.
             credit[p] = bound
             measured[p] = True
             from_end[p] = 1.0 - free / motion * SHRINK if free > 0.0 else 1.0
             if from_end[p] > cleared[p]:
                 pending[waiting] = p
                 waiting += 1
-        # Conservative advancement (module docstring): place the boxes where the least proven
-        # pair stops being proven; every waiting pair's proof grows from there by its
-        # clearance over its motion (cheap bounds for the pairs proven beyond it, the exact
-        # distance for those stopped there); a stopped pair within ``resolution`` is reported.
-        # A stopped pair advances at least resolution / motion per placement: it ends.
+        # The pairs left (module docstring): from s0, where every one is proven so far, a
+        # step to s is tried first where the boxes' chords prove it (each pair on one side of
+        # a fixed plane at s0 and at s, by more than its margin and the boxes' bends), from
+        # the segment's end down by halves; a step no longer than conservative advancement's
+        # (to the least proven pair's end of proof) needs no proof. A step taken tests every
+        # waiting pair there: cheap bounds, the exact distance for a stopped pair not farther
+        # than ``resolution``, which is reported. Every step reaches at least that far, and a
+        # stopped pair's proof then grows by at least resolution / motion: it ends.
+        if waiting:
+            for box in range(robot_boxes):
+                turned = 0.0
+                for j in range(dof):
+                    turned += abs(waypoints[k + 1, j] - waypoints[k, j]) * chord_turns[box, j]
+                bends[box] = chord_reach[box] * turned * turned * CHORD_SAFETY
+            if not start_placed:
+                _place_waypoint(model, base_pose, waypoints, frames, k, scratch, start)
+                start_placed = True
+        s0, near, step = 0.0, start, 1.0
         while waiting:
             s = 1.0
             for i in range(waiting):
                 s = min(s, cleared[pending[i]])
-            _place(model, base_pose, waypoints[k], waypoints[k + 1], s, scratch, at)
+            if s0 + step > s:
+                s = min(s0 + step, 1.0)
+                if s < 1.0:
+                    _place(model, base_pose, waypoints[k], waypoints[k + 1], s, scratch, at)
+                if not _chords_apart(near, end if s == 1.0 else at, pairs, margins, bends,
+                                     (s - s0) * (s - s0), pending[:waiting], cleared, s):
+                    step = 0.5 * (s - s0)
+                    continue
+                if s == 1.0:
+                    break
+            else:
+                _place(model, base_pose, waypoints[k], waypoints[k + 1], s, scratch, at)
+            step = 2.0 * (s - s0)
             left = 0
             for i in range(waiting):
                 p = pending[i]
                 a, b = pairs[p, 0], pairs[p, 1]
                 motion = motions[p]
                 stopped = cleared[p] <= s
+                cleared[p] = max(cleared[p], s)
                 enough = margins[p] + max(motion * (from_end[p] - s), resolution)
                 bound = _sphere_gap(at[0], radii, a, b)
                 if bound <= enough:
-                    bound = _clearance(at, radii, a, b, bound, enough, stopped)
+                    bound = _clearance(at, radii, a, b, bound, enough,
+                                       margins[p] + resolution if stopped else -np.inf)
                 free = bound - margins[p]
                 if stopped and free <= resolution:
                     found[k, p] = s
@@ -256,9 +298,89 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
                     pending[left] = p
                     left += 1
             waiting = left
-        start, end = end, start
+            s0, near, at = s, at, near
+        # The end is the next segment's start; near and at, the two others, its end and at.
+        start, end, at = end, near, at
         start_placed = end_placed
     return found
+
+
+@kernel
+def _chords_apart(near, far, pairs, margins, bends, squared_step, pending, cleared, s):
+    """Return whether every pending pair not proven up to ``s`` is proven from near to far.
+
+    ``near`` and ``far``: the boxes placed at the two ends of a piece ``squared_step`` long
+    squared; ``bends`` each robot box's bound on its points' second derivative along the
+    segment (robot.py, Chord bound): over the piece they stray from their chords by at most
+    squared_step / 8 times it.
+    """
+    robot_boxes = bends.shape[0]
+    for p in pending:
+        if cleared[p] >= s:
+            continue
+        a, b = pairs[p, 0], pairs[p, 1]
+        bend = bends[a] + (bends[b] if b < robot_boxes else 0.0)
+        if not _apart_at_both(near, far, a, b, margins[p] + 0.125 * squared_step * bend):
+            return False
+    return True
+
+
+@kernel
+def _apart_at_both(near, far, a, b, needed):
+    """Return whether one fixed plane has boxes a and b more than ``needed`` apart in both.
+
+    ``near`` and ``far``: two placements of the boxes (centers, rotations, extents). Every
+    point of either box between them lies within its bend of the chord between its two
+    places, so a plane that keeps the boxes apart at both by more than their bends and margin
+    keeps them apart all the way. The planes tried are normal to a's faces at either end and to
+    b's at near (a static box's stay): the separating axis test's face axes, which part most
+    pairs. Rounding is counted against the answer.
+    """
+    tie = TIE_ULPS * EPS * (_size(near, a) + _size(near, b) + _size(far, a) + _size(far, b)
+                            + abs(needed))
+    for axis in range(9):
+        placed = far if 3 <= axis < 6 else near
+        box = b if axis >= 6 else a
+        i = axis % 3
+        normal = (placed[1][box, 0, i], placed[1][box, 1, i], placed[1][box, 2, i])
+        side, gap = _gap_along(near, a, b, normal, 0.0)
+        if gap - tie > needed and _gap_along(far, a, b, normal, side)[1] - tie > needed:
+            return True
+    return False
+
+
+@inlined_kernel
+def _gap_along(boxes, a, b, normal, side):
+    """Return (side, gap): boxes a and b projected on ``normal``, b on ``side`` of a.
+
+    ``side`` 0: the side b is on (+1 or -1). The gap is negative when the projections overlap.
+    """
+    centers, rotations, extents = boxes
+    between = ((centers[b, 0] - centers[a, 0]) * normal[0]
+               + (centers[b, 1] - centers[a, 1]) * normal[1]
+               + (centers[b, 2] - centers[a, 2]) * normal[2])
+    if side == 0.0:
+        side = 1.0 if between >= 0.0 else -1.0
+    return side, side * between - _reach_along(rotations, extents, a, normal) \
+        - _reach_along(rotations, extents, b, normal)
+
+
+@inlined_kernel
+def _reach_along(rotations, extents, box, normal):
+    """Return how far the box reaches from its centre along the unit ``normal``."""
+    reach = 0.0
+    for i in range(3):
+        reach += abs(rotations[box, 0, i] * normal[0] + rotations[box, 1, i] * normal[1]
+                     + rotations[box, 2, i] * normal[2]) * extents[box, i]
+    return reach
+
+
+@inlined_kernel
+def _size(boxes, box):
+    """Return the sum of a box's |centre| and half extents: the scale of its rounding."""
+    centers, _, extents = boxes
+    return abs(centers[box, 0]) + abs(centers[box, 1]) + abs(centers[box, 2]) \
+        + extents[box, 0] + extents[box, 1] + extents[box, 2]
 
 
 @kernel
@@ -309,13 +431,15 @@ def _sphere_gap(centers, radii, a, b):
 
 
 @kernel
-def _clearance(boxes, radii, a, b, gap, enough, exact):
+def _clearance(boxes, radii, a, b, gap, enough, exact_within):
     """Return a lower bound on the distance between boxes a and b, rounding counted against it.
 
     For a pair whose spheres' ``gap`` falls short of ``enough``: each box's sphere against the
     other box, then the SAT's widest separating gap (with ``enough`` as its margin; the first
-    gap past it ends the test), then, if ``exact``, the exact distance; the first that
-    reaches ``enough`` answers. An overlap gives 0. ``radii``: each box's half diagonal.
+    gap past it ends the test); the first that reaches ``enough`` answers. Then, if that gap is
+    at most ``exact_within``, the exact distance: a weaker bound only shortens a proof's step,
+    but a pair is reported on its exact distance. An overlap gives 0. ``radii``: each box's
+    half diagonal.
     """
     centers, rotations, extents = boxes
     ea = (extents[a, 0], extents[a, 1], extents[a, 2])
@@ -334,6 +458,6 @@ def _clearance(boxes, radii, a, b, gap, enough, exact):
     status, overlap, _ = separating_axis_test(rel, t, ea, eb, tie, max(enough, 0.0) + tie)
     if status == COLLIDING:
         return 0.0
-    if status == SEPARATED or not exact:
+    if status == SEPARATED or -overlap - tie > exact_within:
         return max(gap, -overlap - tie)
     return box_distance(rel, t, ea, eb)[0] - tie

@@ -111,6 +111,7 @@ class RobotPath:
             return Result(exact, {})
         found = first_uncleared_pieces(*bodies.packed_model, bodies.base_pose, waypoints, frames,
                                        rows.pairs, rows.motion_radii, rows.margins, rows.boxes,
+                                       bodies.robot.chord_turns, bodies.robot.chord_reach,
                                        max(resolution, 1e-12))
         return Result(segment_contacts(world, bodies, waypoints, exact, found, rows.keys), {})
 
