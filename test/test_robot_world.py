@@ -138,6 +138,31 @@ def test_no_segment_with_a_sampled_collision_goes_unreported(panda, seed):
     assert missed == []
 
 
+def test_a_trajectory_past_the_one_pass_answers_as_in_a_small_scene(panda):
+    """1,000 static boxes far away more: the waypoints go through check_states, the segments
+    place their boxes by forward kinematics (no kept frames), and the answer stays the same."""
+    from collision_node.pipeline.world import ONE_PASS_PAIRS
+    rng = np.random.default_rng(21)
+    limits = panda.joint_limits
+    waypoints = np.clip(rng.uniform(limits[:, 0], limits[:, 1])
+                        + np.cumsum(rng.normal(0.0, 0.2, (8, panda.dof)), axis=0),
+                        limits[:, 0], limits[:, 1])
+    small = panda_world(panda)
+    large = World()
+    far = np.column_stack([rng.uniform(20.0, 30.0, (1000, 3)), np.zeros((1000, 3)),
+                           np.ones(1000)])
+    large.set_static(np.vstack([STATIC_POSES, far]),
+                     np.vstack([STATIC_HALF_EXTENTS, np.full((1000, 3), 0.1)]))
+    large.set_robot(panda)
+    assert large._robot.robot_pass(ONE_PASS_PAIRS) is None  # past the one pass
+    expected = small.check_trajectory(waypoints).contacts
+    assert len(expected) and (expected['toi'] > 0.0).any()
+    got = large.check_trajectory(waypoints).contacts
+    assert len(got) == len(expected)
+    for name in expected.dtype.names:
+        np.testing.assert_array_equal(got[name], expected[name], err_msg=name)
+
+
 def test_waypoints_are_exact_and_a_free_path_reports_nothing(panda):
     world = panda_world(panda)
     states = random_states(panda, 3, seed=5)
