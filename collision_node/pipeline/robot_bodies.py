@@ -24,9 +24,10 @@ a box strays from the chord between its two places by at most its bend, h² / 8 
 on its second derivative along the segment (robot.py, Chord bound). That bound shrinks with
 the square of the piece, where the motion's shrinks with the piece alone: a box that passes
 a wall 4 mm away is proven in a few pieces, where advancement by clearance over motion takes
-a step per 4 mm of its motion bound (doc/robot.md has a count). The piece tried first reaches the segment's end,
-then halves; when it is no longer than conservative advancement's step, the boxes are placed
-where the least proven pair stops being proven, which needs no plane. At every place taken,
+a step per 4 mm of its motion bound (doc/robot.md has a count). The piece tried first
+reaches the segment's end, then halves; when it is no longer than conservative advancement's
+step, the boxes are placed where the least proven pair stops being proven, which needs no
+plane. At every place taken,
 each waiting pair's proof grows: bounding spheres, then the separating axis test's widest gap,
 then for a pair stopped there with a gap within ``resolution`` of its margin the exact
 distance. A stopped pair whose exact clearance is at most ``resolution`` is reported, with
