@@ -139,8 +139,11 @@ def test_no_segment_with_a_sampled_collision_goes_unreported(panda, seed):
 
 
 def test_a_trajectory_past_the_one_pass_answers_as_in_a_small_scene(panda):
-    """1,000 static boxes far away more: the waypoints go through check_states, the segments
-    place their boxes by forward kinematics (no kept frames), and the answer stays the same."""
+    """1,000 more static boxes far away: the answer stays the same.
+
+    The waypoints go through check_states and the segments place their boxes by forward
+    kinematics (no kept frames).
+    """
     from collision_node.pipeline.world import ONE_PASS_PAIRS
     rng = np.random.default_rng(21)
     limits = panda.joint_limits
