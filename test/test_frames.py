@@ -2,7 +2,7 @@
 import numpy as np
 
 from collision_node.pipeline.frames import (quaternion_product, rotation_from_quaternion,
-                                            squared_distance_outside)
+                                            squared_distance_outside, transposed_times)
 
 
 def unit_quaternions(rng, count):
@@ -48,3 +48,11 @@ def test_squared_distance_outside_is_the_distance_to_the_closest_point():
         assert squared_distance_outside(tuple(-point), r, tuple(half)) == got  # symmetric
         inside = tuple(rotation @ (half * rng.uniform(-1.0, 1.0, 3)))
         assert squared_distance_outside(inside, r, tuple(half)) == 0.0
+
+
+def test_transposed_times_is_the_transpose_times_the_vector():
+    rng = np.random.default_rng(4)
+    for quaternion in unit_quaternions(rng, 200):
+        rotation, v = naive_rotation(quaternion), rng.normal(size=3)
+        np.testing.assert_allclose(transposed_times(tuple(rotation.ravel()), tuple(v)),
+                                   rotation.T @ v, atol=1e-15)

@@ -55,10 +55,15 @@ def relative_pose(ra, rb, d):
     rel = (column_dot(ra, 0, rb, 0), column_dot(ra, 0, rb, 1), column_dot(ra, 0, rb, 2),
            column_dot(ra, 1, rb, 0), column_dot(ra, 1, rb, 1), column_dot(ra, 1, rb, 2),
            column_dot(ra, 2, rb, 0), column_dot(ra, 2, rb, 1), column_dot(ra, 2, rb, 2))
-    t = (ra[0] * d[0] + ra[3] * d[1] + ra[6] * d[2],
-         ra[1] * d[0] + ra[4] * d[1] + ra[7] * d[2],
-         ra[2] * d[0] + ra[5] * d[1] + ra[8] * d[2])
-    return rel, t
+    return rel, transposed_times(ra, d)
+
+
+@kernel
+def transposed_times(matrix, v):
+    """Return ``matrix`` (a row-major 9-tuple) transposed times ``v``: v in its frame."""
+    return (matrix[0] * v[0] + matrix[3] * v[1] + matrix[6] * v[2],
+            matrix[1] * v[0] + matrix[4] * v[1] + matrix[7] * v[2],
+            matrix[2] * v[0] + matrix[5] * v[1] + matrix[8] * v[2])
 
 
 @kernel

@@ -498,9 +498,7 @@ def _chord_bound(model, travels):
     turns = np.zeros((len(model.box_links), len(model.joint_limits)))
     reach = np.zeros(len(model.box_links))
     for box in range(len(model.box_links)):
-        start = np.linalg.norm(model.box_translations[box]) \
-            + np.linalg.norm(model.half_extents[box])
-        for link, walked in _walk_up(model, travels, box, NO_INDEX, start):
+        for link, walked in _walk_up(model, travels, box, NO_INDEX, _box_reach(model, box)):
             kind = model.joint_types[link]
             if kind != FIXED:
                 turns[box, model.q_indices[link]] += abs(model.multipliers[link])
@@ -515,15 +513,20 @@ def _chain_radii(model, travels, box, above):
     the joints between them, the ones that move the box relative to that link.
     """
     radii = np.zeros(len(model.joint_limits))
-    # The reach from each joint's origin to any point of the box: the walk from its centre,
-    # plus its half diagonal.
-    start = np.linalg.norm(model.box_translations[box]) + np.linalg.norm(model.half_extents[box])
-    for link, reach in _walk_up(model, travels, box, above, start):
+    for link, reach in _walk_up(model, travels, box, above, _box_reach(model, box)):
         kind = model.joint_types[link]
         if kind != FIXED:
             weight = abs(model.multipliers[link])
             radii[model.q_indices[link]] += weight * (reach if kind == REVOLUTE else 1.0)
     return radii
+
+
+def _box_reach(model, box):
+    """Return how far any point of box ``box`` lies from its link's origin, at most.
+
+    The reach from each joint's origin on the chain then adds the walk up to it (_walk_up).
+    """
+    return np.linalg.norm(model.box_translations[box]) + np.linalg.norm(model.half_extents[box])
 
 
 def _walk_up(model, travels, box, above, start):

@@ -27,15 +27,14 @@ a wall 4 mm away is proven in a few pieces, where advancement by clearance over 
 a step per 4 mm of its motion bound (doc/robot.md has a count). The piece tried first
 reaches the segment's end, then halves; when it is no longer than conservative advancement's
 step, the boxes are placed where the least proven pair stops being proven, which needs no
-plane. At every place taken,
-each waiting pair's proof grows: bounding spheres, then the separating axis test's widest gap,
-then for a pair stopped there with a gap within ``resolution`` of its margin the exact
-distance. A stopped pair whose exact clearance is at most ``resolution`` is reported, with
-``toi`` that configuration. So a segment is reported only when a configuration on it comes
-within ``resolution`` of the pair's margin (colliding, with margin 0, or within ``resolution``
-of it), and every segment with a colliding configuration is reported: nothing between
-waypoints is missed. A sampled check (MoveIt's, at its waypoints or at a fixed step) promises
-neither.
+plane. At every place taken, each waiting pair's proof grows: bounding spheres, then the
+separating axis test's widest gap, then for a pair stopped there with a gap within
+``resolution`` of its margin the exact distance. A stopped pair whose exact clearance is at
+most ``resolution`` is reported, with ``toi`` that configuration. So a segment is reported only
+when a configuration on it comes within ``resolution`` of the pair's margin (colliding, with
+margin 0, or within ``resolution`` of it), and every segment with a colliding configuration is
+reported: nothing between waypoints is missed. A sampled check (MoveIt's, at its waypoints or
+at a fixed step) promises neither.
 """
 import math
 
@@ -44,8 +43,9 @@ import numpy as np
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE
 from collision_node.pipeline.distance import box_distance
-from collision_node.pipeline.frames import (matrix, relative_pose, squared_distance_outside,
-                                            sum_abs)
+from collision_node.pipeline.frames import (dot, matrix, projection_gap, relative_pose,
+                                            squared_distance_outside, sum_abs,
+                                            transposed_times)
 from collision_node.pipeline.obb import check_boxes, EPS, TIE_ULPS
 from collision_node.pipeline.robot import (box_frame, box_poses_of_states, IDENTITY_POSE,
                                            link_frames, link_transforms, pack_model,
@@ -337,51 +337,39 @@ def _apart_at_both(near, far, a, b, needed):
     b's at near (a static box's stay): the separating axis test's face axes, which part most
     pairs. Rounding is counted against the answer.
     """
-    tie = TIE_ULPS * EPS * (_size(near, a) + _size(near, b) + _size(far, a) + _size(far, b)
-                            + abs(needed))
+    ra_near, rb_near, rel_near, t_near, scale_near = _seen_from_a(near, a, b)
+    ra_far, _, rel_far, t_far, scale_far = _seen_from_a(far, a, b)
+    extents = near[2]
+    ea = (extents[a, 0], extents[a, 1], extents[a, 2])
+    eb = (extents[b, 0], extents[b, 1], extents[b, 2])
+    tie = TIE_ULPS * EPS * (scale_near + scale_far + sum_abs(ea) + sum_abs(eb) + abs(needed))
     for axis in range(9):
-        placed = far if 3 <= axis < 6 else near
-        box = b if axis >= 6 else a
+        basis = ra_far if 3 <= axis < 6 else (rb_near if axis >= 6 else ra_near)
         i = axis % 3
-        normal = (placed[1][box, 0, i], placed[1][box, 1, i], placed[1][box, 2, i])
-        side, gap = _gap_along(near, a, b, normal, 0.0)
-        if gap - tie > needed and _gap_along(far, a, b, normal, side)[1] - tie > needed:
+        normal = (basis[i], basis[3 + i], basis[6 + i])  # column i: a face's normal
+        if dot(t_near, transposed_times(ra_near, normal)) < 0.0:  # b on its far side
+            normal = (-normal[0], -normal[1], -normal[2])
+        if projection_gap(rel_near, t_near, ea, eb, transposed_times(ra_near, normal)) \
+                - tie > needed and \
+                projection_gap(rel_far, t_far, ea, eb, transposed_times(ra_far, normal)) \
+                - tie > needed:
             return True
     return False
 
 
 @inlined_kernel
-def _gap_along(boxes, a, b, normal, side):
-    """Return (side, gap): boxes a and b projected on ``normal``, b on ``side`` of a.
+def _seen_from_a(boxes, a, b):
+    """Return boxes a's and b's rotations, b's pose in a's frame, and the rounding's scale.
 
-    ``side`` 0: the side b is on (+1 or -1). The gap is negative when the projections overlap.
+    (ra, rb, rel, t, scale): row-major rotations, rel = AᵀB and t = Aᵀ(c_B − c_A) as
+    frames.relative_pose gives them, and the sum of the centres' |coordinates|.
     """
-    centers, rotations, extents = boxes
-    between = ((centers[b, 0] - centers[a, 0]) * normal[0]
-               + (centers[b, 1] - centers[a, 1]) * normal[1]
-               + (centers[b, 2] - centers[a, 2]) * normal[2])
-    if side == 0.0:
-        side = 1.0 if between >= 0.0 else -1.0
-    return side, side * between - _reach_along(rotations, extents, a, normal) \
-        - _reach_along(rotations, extents, b, normal)
-
-
-@inlined_kernel
-def _reach_along(rotations, extents, box, normal):
-    """Return how far the box reaches from its centre along the unit ``normal``."""
-    reach = 0.0
-    for i in range(3):
-        reach += abs(rotations[box, 0, i] * normal[0] + rotations[box, 1, i] * normal[1]
-                     + rotations[box, 2, i] * normal[2]) * extents[box, i]
-    return reach
-
-
-@inlined_kernel
-def _size(boxes, box):
-    """Return the sum of a box's |centre| and half extents: the scale of its rounding."""
-    centers, _, extents = boxes
-    return abs(centers[box, 0]) + abs(centers[box, 1]) + abs(centers[box, 2]) \
-        + extents[box, 0] + extents[box, 1] + extents[box, 2]
+    centers, rotations, _ = boxes
+    ca = (centers[a, 0], centers[a, 1], centers[a, 2])
+    cb = (centers[b, 0], centers[b, 1], centers[b, 2])
+    ra, rb = matrix(rotations, a), matrix(rotations, b)
+    rel, t = relative_pose(ra, rb, (cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2]))
+    return ra, rb, rel, t, sum_abs(ca) + sum_abs(cb)
 
 
 @kernel
