@@ -60,7 +60,9 @@ def test_tiny_run_prints_tables_and_consistent_json(tmp_path):
         ('arm (config/arm.yaml)', 7), ('uniform 64 (32 static)', 32)]
     for r in results['tick']:
         assert r['inputs'] == 50 and r['us_per_input'] > 0
-        assert 0 < r['narrow_us'] <= r['total_us'] and 0 < r['output_us'] <= r['total_us']
+        # Both scenes are small: their inputs are read, checked and written in one kernel
+        # (ros/lanes.py), narrow, and only the markers (none here) would be output.
+        assert 0 < r['narrow_us'] <= r['total_us'] and 0 <= r['output_us'] <= r['total_us']
     # The echo answered the same inputs, and reports no stages.
     floor, = results['floor']
     assert (floor['bodies'], floor['rate_hz'], floor['threads']) == (100, 20, None)

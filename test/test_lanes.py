@@ -13,9 +13,11 @@ import numpy as np
 import pytest
 
 from collision_node.benchmarks.robot_model import panda_world
+from collision_node.pipeline.world import World
 from collision_node.ros.cdr import CdrError, parse_joint_state, parse_pose_array
 from collision_node.ros.joints import JointInputError, JointValues
 from collision_node.ros.lanes import JointLane, PoseLane
+from collision_node.ros.messages import CloudWriter
 
 
 class Cdr:
@@ -254,3 +256,100 @@ def test_pose_arrays_of_another_layout_go_the_full_way():
     big = pose_array_cdr(poses, order='>')
     lane.learn(big, parse_pose_array(big), config)  # big-endian: read the full way only
     assert lane.read(big, config) is None and lane.read(learned, config) is None
+
+
+class PoseConfig:
+    """The node's configuration as a lane reads it: the bodies' sizes and the cloud's frame."""
+
+    def __init__(self, half_extents, frame_id='world'):
+        self.dynamic_half_extents = half_extents
+        self.frame_id = frame_id
+
+
+def pose_scene(margin):
+    """Return two Worlds of one scene of 3 static boxes: one for the lane, one for the full way."""
+    rng = np.random.default_rng(3)
+    statics = random_poses(rng, 3)
+    worlds = World(margin=margin), World(margin=margin)
+    for world in worlds:
+        world.set_static(statics, np.full((3, 3), 0.4))
+    return worlds
+
+
+def full_way_answer(world, buffer, config):
+    """Return (Result, cloud bytes) of the node's full way: parse, World.step, serialize."""
+    message = parse_pose_array(buffer)
+    result = world.step(message.poses, config.dynamic_half_extents)
+    return result, CloudWriter().serialize(result.contacts, message.sec, message.nanosec,
+                                           config.frame_id)
+
+
+def counts(result):
+    """Return a result's counters, the stats that do not time."""
+    keys = ('dynamic_bodies', 'static_bodies', 'compared', 'candidate_pairs', 'filtered_pairs',
+            'sat_tests', 'reused')
+    return tuple(result.stats[key] for key in keys)
+
+
+@pytest.mark.parametrize('margin', [0.0, 0.05])
+@pytest.mark.parametrize('half_extents', [np.full(3, 0.3),
+                                          np.linspace(0.1, 0.5, 21).reshape(7, 3)])
+def test_a_trackers_pose_arrays_are_answered_as_the_full_way(margin, half_extents):
+    rng = np.random.default_rng(int(100 * margin))
+    config = PoseConfig(half_extents.copy())
+    world, reference = pose_scene(margin)
+    lane, writer = PoseLane(), CloudWriter()
+    first = pose_array_cdr(random_poses(rng, 7), frame_id='')
+    full_way_answer(world, first, config)
+    full_way_answer(reference, first, config)
+    lane.learn(first, parse_pose_array(first), config)
+    reported = reused = 0
+    buffer = first
+    for k in range(200):
+        if k % 10 != 9:  # else the same poses again, with another stamp
+            poses = random_poses(rng, 7)
+        sec, nanosec = int(rng.integers(-2**31, 2**31)), int(rng.integers(0, 2**32))
+        buffer = pose_array_cdr(poses, sec, nanosec, frame_id='')
+        answer = lane.answer(buffer, config, world, writer, 0.0)
+        result, cloud, read, lane_sec, lane_nanosec = answer
+        expected, expected_cloud = full_way_answer(reference, buffer, config)
+        assert np.array_equal(result.contacts, expected.contacts)
+        assert cloud == expected_cloud
+        assert counts(result) == counts(expected)
+        assert read.tobytes() == poses.tobytes() and (lane_sec, lane_nanosec) == (sec, nanosec)
+        reported += len(result.contacts)
+        reused += result.stats['reused']
+    assert reported > 100 and reused == 20  # contacts among them: not vacuous
+    # The World stepped by the lane keeps what a stepped one keeps: the same input is reused.
+    again = world.step(parse_pose_array(buffer).poses, config.dynamic_half_extents)
+    assert again.stats['reused'] and np.array_equal(again.contacts, expected.contacts)
+
+
+def test_pose_arrays_the_lane_cannot_answer_go_the_full_way():
+    rng = np.random.default_rng(5)
+    config = PoseConfig(np.full(3, 0.3))
+    world, _ = pose_scene(0.0)
+    lane, writer = PoseLane(), CloudWriter()
+    learned = pose_array_cdr(random_poses(rng, 7))
+    assert lane.answer(learned, config, world, writer, 0.0) is None  # nothing learned yet
+    full_way_answer(world, learned, config)
+    lane.learn(learned, parse_pose_array(learned), config)
+    assert lane.answer(learned, config, world, writer, 0.0) is not None
+    assert lane.answer(learned, PoseConfig(np.full(3, 0.3)), world, writer, 0.0) is None
+    assert lane.answer(pose_array_cdr(random_poses(rng, 8)), config, world, writer, 0.0) is None
+    invalid = random_poses(rng, 7)
+    invalid[3, 3:] = 0.0  # a zero quaternion: the World says why, the lane does not answer
+    assert lane.answer(pose_array_cdr(invalid), config, world, writer, 0.0) is None
+    with pytest.raises(ValueError, match='body 3'):
+        full_way_answer(world, pose_array_cdr(invalid), config)
+    invalid[3, 3:] = (0.0, 0.0, 0.0, 1.0)
+    invalid[5, 0] = np.nan
+    assert lane.answer(pose_array_cdr(invalid), config, world, writer, 0.0) is None
+    # A scene change: the World gathers again on its next full step, then the lane answers.
+    world.set_static(random_poses(rng, 2), np.full((2, 3), 0.2))
+    assert lane.answer(learned, config, world, writer, 0.0) is None
+    full_way_answer(world, learned, config)
+    assert lane.answer(learned, config, world, writer, 0.0) is not None
+    # A continuous World steps past the one pass: the full way only.
+    world.continuous = True
+    assert lane.answer(learned, config, world, writer, 0.0) is None

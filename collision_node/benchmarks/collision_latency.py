@@ -267,7 +267,9 @@ def run_echo(cloud_path, namespace='', input_topic='dynamic_poses'):
     """Answer every PoseArray at once with the cloud in ``cloud_path``, its stamp copied.
 
     The floor section's stand-in for the node: the same messages both ways through the same
-    QoS and executor, and no collision work, so its latency is what ROS itself costs.
+    QoS, and no collision work, so its latency is what ROS itself costs to a plain rclpy node
+    (one executor for its subscription and its parameter services; the node answers its
+    inputs on an executor of their own: lifetime.PriorityInputs).
     """
     keep_heap_memory()
     with open(cloud_path, 'rb') as source:
@@ -285,7 +287,7 @@ def run_echo(cloud_path, namespace='', input_topic='dynamic_poses'):
         node.create_subscription(message_type, input_topic, answer, qos, raw=True)
         return node
 
-    with RosProgram() as program:  # as the node's main: the same executor, the same exit
+    with RosProgram() as program:  # as the node's main: the same exit
         program.start(make_echo)
         program.spin_until(Future())  # until SIGINT or SIGTERM
 

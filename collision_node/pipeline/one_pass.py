@@ -76,15 +76,28 @@ class OnePass:
         C-contiguous float64 arrays of the last step's shapes (a robot's tick). Then nothing
         is converted or gathered again: World.step tries this first.
         """
+        if type(poses) is np.ndarray and poses.ndim == 2 and poses.shape[1] == 7 \
+                and poses.dtype == np.float64 and poses.flags.c_contiguous \
+                and poses.flags.writeable:
+            gathered = self.as_before(len(poses), half_extents)
+            if gathered is not None:
+                return self._step_gathered(poses, half_extents, gathered, start)
+        return None
+
+    def as_before(self, count, half_extents):
+        """Return what the last step gathered if ``count`` bodies of ``half_extents`` read it.
+
+        That is: the scene rows at the same version, as many bodies, and ``half_extents`` a
+        writable C-contiguous float64 array of the last step's shape. Else None.
+        """
         gathered = self.gathered
         if gathered is not None and gathered.version == self._scene.version \
-                and type(poses) is np.ndarray and poses.shape == gathered.last_poses.shape \
+                and count == len(gathered.last_poses) \
                 and type(half_extents) is np.ndarray \
                 and half_extents.shape == gathered.half_extents_shape \
-                and poses.dtype == half_extents.dtype == np.float64 \
-                and poses.flags.c_contiguous and half_extents.flags.c_contiguous \
-                and poses.flags.writeable and half_extents.flags.writeable:
-            return self._step_gathered(poses, half_extents, gathered, start)
+                and half_extents.dtype == np.float64 and half_extents.flags.c_contiguous \
+                and half_extents.flags.writeable:
+            return gathered
         return None
 
     def _step_gathered(self, poses, half_extents, gathered, start):
@@ -96,15 +109,26 @@ class OnePass:
             half_extents = half_extents.reshape(1, 3)
         contacts, counters, bad, code, invalid, same = check_scene(poses, half_extents,
                                                                    *gathered.arguments)
+        if not same:
+            if bad >= 0:
+                raise InvalidBox(int(bad), REASONS[code])
+            if invalid:
+                raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
+        return self.result(gathered, contacts, counters, same, start)
+
+    @staticmethod
+    def result(gathered, contacts, counters, same, start):
+        """Return the Result of a check_scene call that read ``gathered``, and keep it there.
+
+        ``same``: the input was the last one, whose answer is returned again; else
+        ``contacts`` and ``counters`` are the check's (which found every box valid).
+        """
         if same:
             return Result(gathered.result.contacts, reused(gathered.result.record))
-        if bad >= 0:
-            raise InvalidBox(int(bad), REASONS[code])
-        if invalid:
-            raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
         contacts.flags.writeable = False
         gathered.result = Result(contacts, one_pass_stats(
-            len(poses), gathered.n_static, counters, 1e3 * (time.perf_counter() - start), None))
+            len(gathered.last_poses), gathered.n_static, counters,
+            1e3 * (time.perf_counter() - start), None))
         return gathered.result
 
     @property

@@ -295,6 +295,27 @@ class World:
         self._previous = path.last_poses
         return result
 
+    def pass_as_before(self, count, half_extents):
+        """Return what a step of ``count`` bodies of ``half_extents`` passes check_scene, or None.
+
+        For a caller that runs small_scene.check_scene in a kernel of its own, straight from
+        its input (the node's PoseLane): the arguments after the input's, while a step of that
+        many bodies would be checked in one pass as the last one was (OnePass.as_before). It
+        then hands the check's outcome to :meth:`passed`, as the step's answer.
+        """
+        gathered = self._one_pass.as_before(count, half_extents)
+        if gathered is not None:
+            self._previous = gathered.last_poses
+        return gathered
+
+    def passed(self, gathered, contacts, counters, same, start):
+        """Return the Result of a check_scene call on :meth:`pass_as_before`'s arguments.
+
+        ``start``: perf_counter when the input came; every box was valid (else the caller
+        steps the World, which says why it is not).
+        """
+        return self._one_pass.result(gathered, contacts, counters, same, start)
+
     def broad_phase_pairs(self, poses, half_extents):
         """Return a discrete general step's BroadPhasePairs at these poses; changes no step."""
         self._probe = self._probe or GeneralPath(self._rows, continuous=False)

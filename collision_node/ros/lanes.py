@@ -1,4 +1,4 @@
-"""Lanes: a publisher's next message of a known layout read in one kernel.
+"""Lanes: a publisher's next message of a known layout read (and answered) in one kernel.
 
 A publisher sends the same header at a steady rate: a driver's joint_states name the same
 joints in the same frame, a tracker's PoseArray holds as many poses in the same frame. The
@@ -9,8 +9,12 @@ Once a message has gone the full way, a lane learns its layout: the body's bytes
 frame_id's length to the end of the names (joint_states) or of the pose count (PoseArray).
 A next message whose bytes there are the same is read in one kernel:
 
-* :class:`PoseLane` reads the poses into an aligned array: the node steps the World on them
-  as on the full way's (which validates every pose, so the lane reads only the layout);
+* :class:`PoseLane` reads the poses, checks them with the World's one pass
+  (small_scene.check_scene on World.pass_as_before's arguments: its validation and its reuse
+  of an unchanged input's answer) and writes the cloud's bytes (messages.write_cloud), all in
+  one kernel: the CDR in, the CDR out. Three kernel calls and their Python (the PoseArrayView,
+  the step's checks of its input, the writer's) were the arm's cold cost over an echo node;
+  a scene past the one pass reads its poses in the lane and steps the World on them;
 * :class:`JointLane` reads the positions and merges them into the joint values; then the
   robot's pass (robot_pass.RobotRows.check_state, as World.check_joints runs it) checks them.
 
@@ -21,19 +25,27 @@ way, which answers it or says why. ``test/test_lanes.py`` holds each lane to the
 message by message.
 """
 import math
+import time
+from types import SimpleNamespace
 
 import numpy as np
 
 from collision_node.pipeline._jit import inlined_kernel, kernel
+from collision_node.pipeline.contacts import CONTACT_DTYPE
+from collision_node.pipeline.small_scene import check_scene
+from collision_node.pipeline.world import World
 from collision_node.ros.cdr import (CDR_LE, ENCAPSULATION_SIZE, MAX_JOINT_STATE_TRAILING_BYTES,
-                                    MAX_TRAILING_BYTES, POSE_FIELDS, PoseArrayView)
-from collision_node.ros.messages import compile_writer
+                                    MAX_TRAILING_BYTES, parse_pose_array, POSE_FIELDS,
+                                    PoseArrayView, serialize_pose_array)
+from collision_node.ros.messages import CloudWriter, compile_writer, write_cloud
 
 # Body offset of the frame_id's length: the layout a lane compares starts there.
 FRAME_ID_AT = 8
 LITTLE_ENDIAN = tuple(np.frombuffer(CDR_LE, np.uint8).tolist())
 NO_LAYOUT = np.zeros(0, np.uint8)
 NO_MESSAGE = np.frombuffer(bytes(16), np.uint8)  # read-only, as a message's bytes are
+NO_CONTACTS = np.zeros(0, CONTACT_DTYPE)
+NO_CONTACTS.flags.writeable = False  # as a World's answers are
 
 
 class _Layout:
@@ -54,11 +66,14 @@ class _Layout:
 
 
 class PoseLane:
-    """Reads the PoseArrays of a known layout (module docstring)."""
+    """Reads, checks and answers the PoseArrays of a known layout (module docstring)."""
 
     def __init__(self):
         self._layout = _Layout()
         self._message = None  # the last message read the full way
+        self._scene = None  # the World's pass_as_before arguments the lane last checked with
+        self._extents = None  # their half extents, as check_scene takes them
+        self._writing = None  # the cloud writer's kernel argument, for that scene
 
     def learn(self, buffer, message, config):
         """Take the layout of ``buffer``, read the full way (``message``) and let by ``config``.
@@ -68,6 +83,7 @@ class PoseLane:
         """
         self._layout.learn(buffer, message.count_end, config)
         self._message = message
+        self._scene = None
 
     def read(self, buffer, config):
         """Return ``buffer``'s cdr.PoseArrayView, or None: the full way."""
@@ -79,6 +95,37 @@ class PoseLane:
                                                 len(learned.poses))
         return PoseArrayView(sec, nanosec, learned.frame_id, poses, learned.count_end) \
             if read else None
+
+    def answer(self, buffer, config, world, writer, start):
+        """Check ``buffer`` as ``world.step`` would and write its cloud, in one kernel.
+
+        Returns (Result, the cloud's CDR bytes as ``writer`` writes them in the
+        configuration's frame, poses, sec, nanosec), or None: the full way (another layout or
+        configuration, a step the World would not check in one pass as before, an invalid
+        pose). ``start``: perf_counter when the input came.
+        """
+        layout = self._layout
+        if layout.owner is not config:
+            return None
+        learned = self._message
+        count = len(learned.poses)
+        scene = world.pass_as_before(count, config.dynamic_half_extents)
+        if scene is None:
+            return None
+        if scene is not self._scene:  # a new gathering: a new bound on the contacts
+            extents = config.dynamic_half_extents
+            self._extents = extents.reshape(1, 3) if extents.ndim == 1 else extents
+            self._writing = writer.writing(config.frame_id,
+                                           count * (count - 1) // 2 + count * scene.n_static)
+            self._scene = scene
+        previous = NO_CONTACTS if scene.result is None else scene.result.contacts
+        answered, contacts, counters, same, poses, size, sec, nanosec = _answer_poses(
+            np.frombuffer(buffer, np.uint8), layout.bytes, count, self._extents,
+            *scene.arguments, previous, self._writing)
+        if not answered:
+            return None
+        result = world.passed(scene, contacts, counters, same, start)
+        return result, self._writing[0][:size].tobytes(), poses, sec, nanosec
 
 
 class JointLane:
@@ -128,9 +175,23 @@ def compile_ros_kernels():
     """
     compile_writer()
     _read_poses(NO_MESSAGE, NO_LAYOUT, 1)
+    for margin in (0.0, 0.01):  # small_scene's two variants: without and with margins
+        _answer_one_pose(margin)
     no_joints = np.zeros(0, np.int64)
     _merge_joints(NO_MESSAGE, NO_LAYOUT, 1, no_joints, no_joints, np.zeros(1),
                   np.zeros(1, np.bool_))
+
+
+def _answer_one_pose(margin):
+    """Answer a PoseArray of one body in a lane, in a World of ``margin``: compiles its kernel."""
+    world = World(margin=margin)
+    config = SimpleNamespace(dynamic_half_extents=np.full((1, 3), 0.1), frame_id='')  # in short
+    buffer = serialize_pose_array(0, 0, '', np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]]))
+    message = parse_pose_array(buffer)
+    world.step(message.poses, config.dynamic_half_extents)
+    lane = PoseLane()
+    lane.learn(buffer, message, config)
+    assert lane.answer(buffer, config, world, CloudWriter(), time.perf_counter()) is not None
 
 
 @kernel
@@ -151,6 +212,30 @@ def _read_poses(message, layout, count):
     sec, nanosec = _stamp(body)
     return True, _float64s(body, at, POSE_FIELDS * count).reshape((count, POSE_FIELDS)), sec, \
         nanosec
+
+
+@kernel
+def _answer_poses(message, layout, count, half_extents, last, statics, rows, options, previous,
+                  writing):
+    """Read a message of ``layout``, check it and write its cloud: PoseLane.answer's kernel.
+
+    As _read_poses, then small_scene.check_scene (its arguments after the poses'), then
+    messages.write_cloud (``previous``: the contacts of the last input, for the same input
+    again). Returns (answered, contacts, counters, same, poses, cloud size, sec, nanosec);
+    answered False: the full way (not of the layout, or a pose the World refuses).
+    """
+    read, poses, sec, nanosec = _read_poses(message, layout, count)
+    if not read:
+        return False, np.empty(0, CONTACT_DTYPE), (0, 0, 0, 0), False, poses, 0, sec, nanosec
+    contacts, counters, bad, _, invalid, same = check_scene(poses, half_extents, last,
+                                                            statics, rows, options)
+    if same:
+        return True, contacts, counters, True, poses, \
+            write_cloud(writing, sec, nanosec, previous.view(np.uint8)), sec, nanosec
+    if bad >= 0 or invalid:
+        return False, contacts, counters, False, poses, 0, sec, nanosec
+    return True, contacts, counters, False, poses, \
+        write_cloud(writing, sec, nanosec, contacts.view(np.uint8)), sec, nanosec
 
 
 @kernel

@@ -13,9 +13,11 @@ close that window, so this module handles the outcome instead:
   cold numba cache, minutes of compiling) ends the start at once; later it raises nothing.
 """
 import contextlib
+import threading
 import time
 
 import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
 from collision_node.ros.signal_latch import LATCH, Stopped
@@ -59,9 +61,12 @@ class RosProgram:
         return self.node
 
     def spin_until(self, future, timeout_sec=None):
-        """Spin the node until ``future`` is done, ``timeout_sec`` passed or rclpy shut down."""
-        executor = SingleThreadedExecutor(context=self.node.context)
-        spin_until(executor, self.node, future, timeout_sec)
+        """Spin the node until ``future`` is done, ``timeout_sec`` passed or rclpy shut down.
+
+        A node with ``priority_inputs`` (:class:`PriorityInputs`) has those answered on a
+        thread and executor of their own meanwhile.
+        """
+        spin_node_until(self.node, future, timeout_sec)
 
     @property
     def shut_down(self):
@@ -81,6 +86,91 @@ class RosProgram:
         finally:
             rclpy.try_shutdown()
         return quiet
+
+
+def spin_node_until(node, future, timeout_sec=None):
+    """Spin ``node`` on this thread as :func:`spin_until`; its ``priority_inputs`` on theirs."""
+    priority = getattr(node, 'priority_inputs', None)
+    if priority is None:
+        spin_until(SingleThreadedExecutor(context=node.context), node, future, timeout_sec)
+        return
+    with priority.spinning():
+        spin_until(_PartExecutor(node, priority.left_out), node, future, timeout_sec)
+
+
+class PriorityInputs:
+    """A node's inputs answered on an executor and a thread of their own (RosProgram.spin_until).
+
+    rclpy's executor walks every entity it waits on at each wake-up: ~3 µs each when warm
+    (collision_node.benchmarks.executor_cost), more from the cold caches an input meets at
+    200 Hz. A lifecycle node with parameters waits on ~20 (its lifecycle and parameter
+    services, its inputs, timers and guards), a plain node on ~10. The inputs whose answer
+    someone waits for go on an executor that waits on them alone, in their own callback group
+    (:attr:`group`), so the other executor never holds them back; the rest (services,
+    timers, the other inputs) stay on the main thread's executor. Their callbacks then run
+    on two threads: the node serialises them as its own (collision_node.ros.node's gate).
+    """
+
+    def __init__(self, node):
+        self.group = MutuallyExclusiveCallbackGroup()
+        self._node = node
+        # Wakes the thread's executor when the inputs change, so that it waits on the new ones.
+        self._changed = node.create_guard_condition(_nothing, self.group)
+        self._entities = {self._changed}
+
+    def add(self, entity):
+        """Answer ``entity`` (made in :attr:`group`) on the thread from now on."""
+        self._entities.add(entity)
+        self._changed.trigger()
+
+    def discard(self, entity):
+        """Forget ``entity`` (destroyed, or about to be)."""
+        self._entities.discard(entity)
+        self._changed.trigger()
+
+    def left_out(self, entity):
+        """Tell whether ``entity`` is not one of these inputs: the main executor's part."""
+        return entity not in self._entities
+
+    @contextlib.contextmanager
+    def spinning(self):
+        """Answer the inputs on a thread of their own while in the block."""
+        executor = _PartExecutor(self._node, self._entities.__contains__)
+        stop = threading.Event()
+
+        def spin():
+            while not stop.is_set() and executor.context.ok():
+                with ending_on_shutdown(executor.context):
+                    executor.spin_once()
+
+        thread = threading.Thread(target=spin, name='priority_inputs', daemon=True)
+        thread.start()
+        try:
+            yield
+        finally:
+            stop.set()
+            executor.wake()
+            thread.join()
+            executor.shutdown()
+
+
+class _PartExecutor(SingleThreadedExecutor):
+    """Runs the callbacks of the entities of ``node`` that ``takes(entity)`` picks."""
+
+    def __init__(self, node, takes):
+        super().__init__(context=node.context)
+        self._node = node
+        self._takes = takes
+
+    def get_nodes(self):
+        return [self._node]
+
+    def can_execute(self, entity):
+        return self._takes(entity) and super().can_execute(entity)
+
+
+def _nothing():
+    """Do nothing: a guard condition's trigger only wakes the executor."""
 
 
 def spin_until(executor, node, future, timeout_sec=None):

@@ -144,17 +144,23 @@ class CloudWriter:
         if not (INT32_RANGE[0] <= sec <= INT32_RANGE[1]
                 and UINT32_RANGE[0] <= nanosec <= UINT32_RANGE[1]):
             point_cloud_parts(sec, nanosec, frame_id, self._cloud_dtype, 0)  # raises, says why
+        writing = self.writing(frame_id, len(contacts))
+        size = write_cloud(writing, sec, nanosec, np.frombuffer(contacts, np.uint8))
+        return writing[0][:size].tobytes()
+
+    def writing(self, frame_id, points):
+        """Return the writing kernel's first argument, for clouds of up to ``points`` points.
+
+        (buffer, head, width offset, contact row size, and the fields' is_float, contact
+        words, point words, point size, tail): the buffer holds such a cloud in ``frame_id``.
+        """
         head = self._head_bytes(frame_id)
         point_size = self._cloud_dtype.itemsize
-        size = len(head) + point_size * len(contacts) + len(_TAIL)
+        size = len(head) + point_size * points + len(_TAIL)
         if len(self._buffer) < size:
             self._buffer = np.zeros(size, np.uint8)
-        # One kernel writes the head, patched (stamp, width, row_step, the data's length),
-        # the points narrowed from the contacts' bytes, and the tail.
-        _write_cloud(self._buffer, head, sec, nanosec, self._width_offset,
-                     np.frombuffer(contacts, np.uint8), contacts.dtype.itemsize, self._is_float,
-                     self._contact_words, self._point_words, point_size, _TAIL)
-        return self._buffer[:size].tobytes()
+        return (self._buffer, head, self._width_offset, self._contact_dtype.itemsize,
+                self._is_float, self._contact_words, self._point_words, point_size, _TAIL)
 
     def _head_bytes(self, frame_id):
         """Return the head of a cloud of no points in ``frame_id`` (built once per frame)."""
@@ -170,15 +176,16 @@ class CloudWriter:
 
 
 @kernel
-def _write_cloud(buffer, head, sec, nanosec, width_at, rows, row_size, is_float, contact_word,
-                 point_word, point_size, tail):
-    """Write a cloud of the contacts' bytes ``rows`` into ``buffer``; return its size.
+def write_cloud(writing, sec, nanosec, rows):
+    """Write a cloud of the contacts' bytes ``rows`` into ``writing``'s buffer; return its size.
 
-    ``head``: the CDR before the points of a cloud of none, in which the stamp, the width
-    (at ``width_at``), row_step and the data's length (its last two words) are patched.
-    Contacts as float64 and uint32 words to points as float32 and uint32 words: field f is
-    word ``contact_word[f]`` of a row, word ``point_word[f]`` of a point.
+    ``writing``: CloudWriter.writing's tuple. Its head is the CDR before the points of a cloud
+    of none, in which the stamp, the width, row_step and the data's length (its last two
+    words) are patched. Contacts as float64 and uint32 words to points as float32 and uint32
+    words: field f is word ``contact_word[f]`` of a row, word ``point_word[f]`` of a point.
     """
+    buffer, head, width_at, row_size, is_float, contact_word, point_word, point_size, tail = \
+        writing
     count = rows.shape[0] // row_size
     data = count * point_size
     at = head.shape[0]

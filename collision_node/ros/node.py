@@ -89,7 +89,7 @@ from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import parse_joint_state, parse_pose_array
 from collision_node.ros.joints import JointValues
 from collision_node.ros.lanes import compile_ros_kernels, JointLane, PoseLane
-from collision_node.ros.lifetime import InitError, RosProgram
+from collision_node.ros.lifetime import InitError, PriorityInputs, RosProgram
 from collision_node.ros.markers import MarkerWriter
 from collision_node.ros.memory import keep_heap_memory
 from collision_node.ros.messages import CloudWriter
@@ -207,6 +207,9 @@ class CollisionNode(LifecycleNode):
         self._joint_lane = JointLane()  # its layout, for the next messages of it
         self._pose_lane = PoseLane()  # the layout of the last dynamic_poses read
         self.finalized = Future()  # done once the shutdown transition has run
+        # dynamic_poses and joint_states: answered on an executor and thread of their own,
+        # which waits on nothing else (lifetime.PriorityInputs), when main() spins the node.
+        self.priority_inputs = PriorityInputs(self)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
 
@@ -323,7 +326,7 @@ class CollisionNode(LifecycleNode):
             self._tick_timer.cancel()  # activate starts it
         # Last, after the warm-up: no input is taken before the node can answer it in time.
         self._subscription = self._create_input(PoseArray, 'dynamic_poses', self._on_input,
-                                                self._ignore_input)
+                                                self._ignore_input, priority=True)
         self._create_input(PoseArray, 'static_poses', self._on_static_poses, scene=True)
         self._create_input(PoseArray, 'check_states', self._on_check_states, qos=REQUEST_QOS)
         # The robot: a model topic only when its parameter is empty; models and joint values
@@ -334,7 +337,7 @@ class CollisionNode(LifecycleNode):
                 self._create_input(String, topic, callback, scene=True, qos=MODEL_QOS,
                                    raw=False)
         self._create_input(JointState, 'joint_states', self._on_joint_states,
-                           self._keep_joint_states, qos=JOINT_STATES_QOS)
+                           self._keep_joint_states, qos=JOINT_STATES_QOS, priority=True)
         self._create_input(JointTrajectory, 'check_trajectory', self._on_check_trajectory,
                            qos=REQUEST_QOS, raw=False)
         self.get_logger().info(
@@ -411,7 +414,9 @@ class CollisionNode(LifecycleNode):
             if self._active:
                 self._close_gate('inactive')
             while self._inputs:
-                self.destroy_subscription(self._inputs.pop())
+                subscription = self._inputs.pop()
+                self.priority_inputs.discard(subscription)
+                self.destroy_subscription(subscription)
             while self._outputs:
                 self.destroy_lifecycle_publisher(self._outputs.pop())
             if self._tick_timer is not None:
@@ -451,7 +456,7 @@ class CollisionNode(LifecycleNode):
     # Inputs.
 
     def _create_input(self, message_type, topic, callback, ignore=None, scene=False,
-                      qos=INPUT_QOS, raw=True):
+                      qos=INPUT_QOS, raw=True, priority=False):
         """Subscribe ``callback`` to an input topic, behind the lifecycle gate (at configure).
 
         Every input is made here: raw CDR bytes, the input QoS with its qos_overrides
@@ -459,14 +464,17 @@ class CollisionNode(LifecycleNode):
         arguments; by default: count one ignored input) for an input it turns away. ``scene``:
         the input changes the scene rather than asking for an answer (static_poses): it is
         applied while inactive too. ``raw=False`` for the small messages of the robot (rclpy
-        deserialises them).
+        deserialises them). ``priority``: answered on the thread of :attr:`priority_inputs`.
         """
         # A copy: rclpy writes the qos_overrides into the profile it is given, and the next
         # node of this process would start from them.
         subscription = self.create_subscription(
             message_type, topic, self._gated(callback, ignore, scene), copy.copy(qos),
             raw=raw, qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-            event_callbacks=NO_SUBSCRIPTION_EVENTS)
+            event_callbacks=NO_SUBSCRIPTION_EVENTS,
+            callback_group=self.priority_inputs.group if priority else None)
+        if priority:
+            self.priority_inputs.add(subscription)
         self._inputs.append(subscription)  # cleanup destroys it
         return subscription
 
@@ -539,6 +547,14 @@ class CollisionNode(LifecycleNode):
             if self._robot is not None:
                 raise InputError('refused while a robot model is loaded: its boxes are the '
                                  'dynamic bodies (publish joint_states)')
+            with self._world_lock:
+                answer = self._pose_lane.answer(buffer, config, self._world, self._cloud_writer,
+                                                start)
+            if answer is not None:  # read, checked and written in one kernel (lanes.py)
+                result, cloud, poses, sec, nanosec = answer
+                self._publish_tick(start, start, result, sec, nanosec, poses,
+                                   config.dynamic_half_extents, cloud=cloud)
+                return
             message = self._pose_lane.read(buffer, config)
             if message is None:  # not of the last layout read: the full way (lanes.py)
                 message = _read_poses(buffer, config, _dynamic_count_problem)
@@ -553,15 +569,16 @@ class CollisionNode(LifecycleNode):
                            config.dynamic_half_extents)
 
     def _publish_tick(self, start, checked, result, sec, nanosec, poses, half_extents,
-                      writer=None):
+                      writer=None, cloud=None):
         """Publish a check's answer and markers, and record the tick (perf_counter times).
 
-        ``writer``: the CloudWriter of the result's contacts (default: a step's); ``poses``
-        None: no markers this time.
+        ``writer``: the CloudWriter of the result's contacts (default: a step's); ``cloud``:
+        their cloud's bytes, when the check wrote them; ``poses`` None: no markers this time.
         """
         stepped = time.perf_counter()
-        cloud = (writer or self._cloud_writer).serialize(result.contacts, sec, nanosec,
-                                                         self._config.frame_id)
+        if cloud is None:
+            cloud = (writer or self._cloud_writer).serialize(result.contacts, sec, nanosec,
+                                                             self._config.frame_id)
         output_ms = 1e3 * (time.perf_counter() - stepped)
         self._collisions_publisher.publish(cloud)
         now = time.monotonic()
@@ -883,8 +900,9 @@ class CollisionNode(LifecycleNode):
     def _publish_diagnostics(self):
         config = self._config
         timeout_s, rate_hz = (config.input_timeout_s, config.tick_rate_hz) if config else (0, 0)
-        level, message, values = self._monitor.report(
-            time.monotonic(), timeout_s, 1.0 / rate_hz if rate_hz else 0.0)
+        with self._gate:  # not while an input's callback, on its own thread, counts
+            level, message, values = self._monitor.report(
+                time.monotonic(), timeout_s, 1.0 / rate_hz if rate_hz else 0.0)
         status = DiagnosticStatus(
             level=bytes([level]), name=self.get_name() + diagnostics.STATUS_SUFFIX,
             message=message, hardware_id='none',
