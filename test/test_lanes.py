@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from collision_node.benchmarks.robot_model import panda_world
+from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
 from collision_node.pipeline.world import World
 from collision_node.ros.cdr import CdrError, parse_joint_state, parse_pose_array
 from collision_node.ros.joints import JointInputError, JointValues
@@ -64,6 +65,13 @@ def pose_array_cdr(poses, sec=5, nanosec=6, frame_id='world', order='<', trailin
     for value in np.ravel(poses):
         cdr.put('d', value)
     return bytes(cdr.out) + trailing
+
+
+# The node's writer of the robot's clouds (their contacts carry a state, the cloud does not),
+# and its frame.
+JOINTS_WRITER = CloudWriter(STATE_CONTACT_DTYPE, CONTACT_DTYPE.names)
+FRAME = 'world'
+CLOUD = (JOINTS_WRITER, FRAME)
 
 
 class FullWay:
@@ -123,10 +131,11 @@ def test_a_drivers_stream_is_answered_as_the_full_way(scene):
         sec, nanosec = int(rng.integers(-2**31, 2**31)), int(rng.integers(0, 2**32))
         buffer = joint_state_cdr(names, positions_of(names, robot, q), velocities=[0.1] * (k % 3),
                                  efforts=[0.2] * len(names) * (k % 2), sec=sec, nanosec=nanosec)
-        contacts, passed, sat_tests, lane_sec, lane_nanosec = lane.answer(
-            buffer, joints.joints, world.robot_pass())
+        contacts, passed, sat_tests, lane_sec, lane_nanosec, cloud = lane.answer(
+            buffer, joints.joints, world.robot_pass(), *CLOUD)
         expected, expected_sec, expected_nanosec = reference.answer(world, buffer)
         assert np.array_equal(contacts, expected)
+        assert cloud == JOINTS_WRITER.serialize(expected, sec, nanosec, FRAME)  # as the node's
         assert (lane_sec, lane_nanosec) == (expected_sec, expected_nanosec) == (sec, nanosec)
         assert np.array_equal(joints.joints.q(), reference.joints.q())
         assert sat_tests <= passed
@@ -164,11 +173,11 @@ def test_messages_it_cannot_answer_go_the_full_way_unchanged(scene):
     for case, buffer in others.items():
         lane, full, reference = learned_lane(world, robot, names)
         before = full.joints.q()
-        assert lane.answer(buffer, full.joints, world.robot_pass()) is None, case
+        assert lane.answer(buffer, full.joints, world.robot_pass(), *CLOUD) is None, case
         assert np.array_equal(full.joints.q(), before), case
         assert (refused(reference, world, buffer) is not None) == (case in expected_refusals)
         # The next message of the learned layout is the lane's again.
-        answer = lane.answer(joint_state_cdr(names, good), full.joints, world.robot_pass())
+        answer = lane.answer(joint_state_cdr(names, good), full.joints, world.robot_pass(), *CLOUD)
         assert answer is not None and np.array_equal(
             answer[0], world.check_joints(full.joints.q()).contacts), case
 
@@ -179,20 +188,20 @@ def test_a_joint_without_a_value_leaves_the_answer_to_the_full_way(scene):
     lane, full, _ = learned_lane(world, robot, arm)
     assert full.joints.missing
     buffer = joint_state_cdr(arm, [0.2] * len(arm))
-    assert lane.answer(buffer, full.joints, world.robot_pass()) is None
+    assert lane.answer(buffer, full.joints, world.robot_pass(), *CLOUD) is None
     assert full.answer(world, buffer) is None  # the full way waits (and warns) too
     # A gripper's message (another layout) completes q the full way; the arm's next one goes
     # the full way too (the values last merged the gripper's names), and is learned.
     gripper = [name for name in robot.joint_names if 'finger' in name]
     gripper_message = joint_state_cdr(gripper, [0.01] * len(gripper))
-    assert lane.answer(gripper_message, full.joints, world.robot_pass()) is None
+    assert lane.answer(gripper_message, full.joints, world.robot_pass(), *CLOUD) is None
     full.answer(world, gripper_message)
     arm_message = joint_state_cdr(arm, [0.3] * len(arm))
-    assert lane.answer(arm_message, full.joints, world.robot_pass()) is None
+    assert lane.answer(arm_message, full.joints, world.robot_pass(), *CLOUD) is None
     full.answer(world, arm_message)
     lane.learn(arm_message, full.previous, full.joints)
     answer = lane.answer(joint_state_cdr(arm, [0.4] * len(arm)), full.joints,
-                         world.robot_pass())
+                         world.robot_pass(), *CLOUD)
     assert answer is not None
     assert np.array_equal(answer[0], world.check_joints(full.joints.q()).contacts)
 
@@ -202,10 +211,10 @@ def test_no_robot_pass_or_another_joint_values_mean_the_full_way(scene):
     names = driver_names(robot)
     lane, full, _ = learned_lane(world, robot, names)
     buffer = joint_state_cdr(names, positions_of(names, robot, np.zeros(robot.dof)))
-    assert lane.answer(buffer, full.joints, None) is None  # continuous, or past one pass
+    assert lane.answer(buffer, full.joints, None, *CLOUD) is None  # continuous, or past one pass
     assert lane.answer(buffer, JointValues(robot.joint_names, full.joints),
-                       world.robot_pass()) is None  # a new model: its values unmerged
-    assert lane.answer(buffer, None, world.robot_pass()) is None
+                       world.robot_pass(), *CLOUD) is None  # a new model: its values unmerged
+    assert lane.answer(buffer, None, world.robot_pass(), *CLOUD) is None
 
 
 def random_poses(rng, count):

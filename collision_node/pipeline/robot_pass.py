@@ -147,8 +147,12 @@ class RobotRows:
 
     def check_state(self, q):
         """Return check_robot_states' answer for one state ``q`` (dof,), C-contiguous float64."""
-        floats, ints = self._workspaces[0]
-        return check_robot_state(q, floats, ints)
+        return check_robot_state(q, *self.state_workspace)
+
+    @property
+    def state_workspace(self):
+        """Return check_robot_state's arguments after ``q``: for a kernel that calls it."""
+        return self._workspaces[0]
 
     def check(self, states, first_state, stop_state, frames=None, chunk=0):
         """Return check_robot_states' answer for states ``[first_state, stop_state)``.

@@ -15,8 +15,9 @@ A next message whose bytes there are the same is read in one kernel:
   one kernel: the CDR in, the CDR out. Three kernel calls and their Python (the PoseArrayView,
   the step's checks of its input, the writer's) were the arm's cold cost over an echo node;
   a scene past the one pass reads its poses in the lane and steps the World on them;
-* :class:`JointLane` reads the positions and merges them into the joint values; then the
-  robot's pass (robot_pass.RobotRows.check_state, as World.check_joints runs it) checks them.
+* :class:`JointLane` reads the positions and merges them into the joint values, the robot's
+  pass (robot_pass.check_robot_state, as World.check_joints runs it) checks them, and the
+  cloud is written: one kernel too.
 
 A lane never refuses: a message it cannot answer exactly as the full way would (another
 layout, big-endian CDR, lengths or values the full way refuses, a joint still without a
@@ -31,7 +32,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from collision_node.pipeline._jit import inlined_kernel, kernel
-from collision_node.pipeline.contacts import CONTACT_DTYPE
+from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
+from collision_node.pipeline.robot_pass import check_robot_state
 from collision_node.pipeline.small_scene import check_scene
 from collision_node.pipeline.world import World
 from collision_node.ros.cdr import (CDR_LE, ENCAPSULATION_SIZE, MAX_JOINT_STATE_TRAILING_BYTES,
@@ -134,6 +136,8 @@ class JointLane:
     def __init__(self):
         self._layout = _Layout()
         self._name_count = 0
+        self._rows = self._writer = None  # the pass and writer the lane last answered with
+        self._writing = None  # that writer's kernel argument, for that pass
 
     def learn(self, buffer, message, joints):
         """Take the layout of ``buffer``, merged the full way into ``joints`` (JointValues).
@@ -148,23 +152,28 @@ class JointLane:
         self._layout.learn(buffer, message.names_end, joints.merged_names)
         self._name_count = len(message.names)
 
-    def answer(self, buffer, joints, rows):
-        """Return (contacts, pairs passed, SAT tests, sec, nanosec), or None: the full way.
+    def answer(self, buffer, joints, rows, writer, frame_id):
+        """Merge, check and write the cloud of ``buffer``, in one kernel.
 
-        ``joints``: the JointValues the layout was learned with; ``rows``: the World's
-        robot_pass() (None: the full way).
+        Returns (contacts, pairs passed, SAT tests, sec, nanosec, the cloud's CDR bytes as
+        ``writer`` writes them in ``frame_id``), or None: the full way. ``joints``: the
+        JointValues the layout was learned with; ``rows``: the World's robot_pass() (None:
+        the full way).
         """
         layout = self._layout
         if rows is None or joints is None or layout.owner is None \
                 or joints.merged_names is not layout.owner:
             return None
+        if rows is not self._rows or writer is not self._writer:  # a bound for that pass
+            self._writing = writer.writing(frame_id, rows.all_pairs)
+            self._rows, self._writer = rows, writer
         entries, indices, values, known = joints.merge_arrays()
-        merged, sec, nanosec = _merge_joints(np.frombuffer(buffer, np.uint8), layout.bytes,
-                                             self._name_count, entries, indices, values, known)
-        if not merged:
+        answered, contacts, passed, sat_tests, size, sec, nanosec = _answer_joints(
+            np.frombuffer(buffer, np.uint8), layout.bytes, self._name_count, entries, indices,
+            values, known, *rows.state_workspace, self._writing)
+        if not answered:
             return None
-        contacts, (passed, sat_tests), state, _, _, invalid = rows.check_state(values)
-        return None if state >= 0 or invalid else (contacts, passed, sat_tests, sec, nanosec)
+        return contacts, passed, sat_tests, sec, nanosec, self._writing[0][:size].tobytes()
 
 
 def compile_ros_kernels():
@@ -177,9 +186,12 @@ def compile_ros_kernels():
     _read_poses(NO_MESSAGE, NO_LAYOUT, 1)
     for margin in (0.0, 0.01):  # small_scene's two variants: without and with margins
         _answer_one_pose(margin)
+    # Not of the layout: not merged, so the robot's pass (which no workspace here could feed)
+    # is compiled, never run.
     no_joints = np.zeros(0, np.int64)
-    _merge_joints(NO_MESSAGE, NO_LAYOUT, 1, no_joints, no_joints, np.zeros(1),
-                  np.zeros(1, np.bool_))
+    _answer_joints(NO_MESSAGE, NO_LAYOUT, 1, no_joints, no_joints, np.zeros(1),
+                   np.zeros(1, np.bool_), np.zeros(1), np.zeros(1, np.int64),
+                   CloudWriter(STATE_CONTACT_DTYPE, CONTACT_DTYPE.names).writing('', 0))
 
 
 def _answer_one_pose(margin):
@@ -235,6 +247,28 @@ def _answer_poses(message, layout, count, half_extents, last, statics, rows, opt
     if bad >= 0 or invalid:
         return False, contacts, counters, False, poses, 0, sec, nanosec
     return True, contacts, counters, False, poses, \
+        write_cloud(writing, sec, nanosec, contacts.view(np.uint8)), sec, nanosec
+
+
+@kernel
+def _answer_joints(message, layout, name_count, entries, joints, values, known, floats, ints,
+                   writing):
+    """Merge a message of ``layout``, check the state and write its cloud: JointLane.answer's.
+
+    As _merge_joints, then robot_pass.check_robot_state on the values (``floats``, ``ints``:
+    its workspace), then messages.write_cloud. Returns (answered, contacts, pairs passed, SAT
+    tests, cloud size, sec, nanosec); answered False: the full way (not merged, or a state
+    the pass refuses).
+    """
+    merged, sec, nanosec = _merge_joints(message, layout, name_count, entries, joints, values,
+                                         known)
+    if not merged:
+        return False, np.empty(0, STATE_CONTACT_DTYPE), 0, 0, 0, sec, nanosec
+    contacts, (passed, sat_tests), state, _, _, invalid = check_robot_state(values, floats,
+                                                                            ints)
+    if state >= 0 or invalid:
+        return False, contacts, passed, sat_tests, 0, sec, nanosec
+    return True, contacts, passed, sat_tests, \
         write_cloud(writing, sec, nanosec, contacts.view(np.uint8)), sec, nanosec
 
 

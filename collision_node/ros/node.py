@@ -723,7 +723,7 @@ class CollisionNode(LifecycleNode):
                     else:  # the robot's pass: the same answer, forward kinematics inside
                         result = self._world.check_joints(q)
                         writer = self._joints_writer
-                        poses = self._marker_poses(q)
+                        poses = self._marker_poses(joints)
         except REFUSALS as error:  # ValueError: the World's filters sized for other bodies
             self._reject('joint_states', error)
             return
@@ -740,25 +740,25 @@ class CollisionNode(LifecycleNode):
         with self._world_lock:
             world = self._world
             rows = None if world.continuous else world.robot_pass()
-            answer = self._joint_lane.answer(buffer, self._joints, rows)
+            answer = self._joint_lane.answer(buffer, self._joints, rows, self._joints_writer,
+                                             self._config.frame_id)
             if answer is None:
                 return False
-            contacts, passed, sat_tests, sec, nanosec = answer
+            contacts, passed, sat_tests, sec, nanosec, cloud = answer
             result = rows.result(contacts, passed, sat_tests,
                                  1e3 * (time.perf_counter() - start), 1)
             half_extents = self._robot.half_extents
-            poses = self._marker_poses(self._joints.q())
+            poses = self._marker_poses(self._joints)
         self._monitor.received()
         self._monitor.missing_joints(())
-        self._publish_tick(start, start, result, sec, nanosec, poses, half_extents,
-                           self._joints_writer)
+        self._publish_tick(start, start, result, sec, nanosec, poses, half_extents, cloud=cloud)
         return True
 
-    def _marker_poses(self, q):
-        """Return the robot's box poses at q for the markers when they are due, else None."""
+    def _marker_poses(self, joints):
+        """Return the box poses at the values of ``joints`` for the markers when due, else None."""
         if time.monotonic() < self._next_markers_s:
             return None
-        return self._world.robot_poses(q)[0]
+        return self._world.robot_poses(joints.q())[0]
 
     def _keep_joint_states(self, buffer):
         """While not active: keep the joint values (answer nothing); count an ignored input."""
