@@ -83,3 +83,21 @@ def test_the_node_answers_dynamic_poses_and_joint_states_first(context):
         assert topics == {'/dynamic_poses', '/joint_states'}
     finally:
         node.destroy_node()
+
+
+def test_an_error_of_a_priority_input_ends_the_spin_with_it(context):
+    node = rclpy.create_node('priority_error', context=context)
+    node.priority_inputs = PriorityInputs(node)
+
+    def fail(_):
+        raise ZeroDivisionError('a bug in a callback')
+
+    failing = node.create_subscription(String, 'fast', fail, 10,
+                                       callback_group=node.priority_inputs.group)
+    node.priority_inputs.add(failing)
+    publisher = node.create_publisher(String, 'fast', 10)
+    node.create_timer(0.01, lambda: publisher.publish(String(data='x')))
+    with pytest.raises(ZeroDivisionError, match='a bug'):
+        spin_node_until(node, Future(), TIMEOUT_S)  # as on the main thread: raised, not lost
+    assert priority_threads() == []
+    node.destroy_node()

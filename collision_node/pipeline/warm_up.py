@@ -203,7 +203,7 @@ def _compile_task(task):
     return name, progress.compiled, time.monotonic() - start
 
 
-def warm_up_in_background(compile_first, report=None):
+def warm_up_in_background(compile_first, report=None, also=None):
     """Ready every kernel in a thread of its own, while the process goes on; return the thread.
 
     ``compile_first``: the cache is probably cold (a start just compiled): the kernels are
@@ -212,20 +212,30 @@ def warm_up_in_background(compile_first, report=None):
     :func:`warm_up` in this process loads every kernel from numba's cache (about a second), so
     that no later tick waits for one. A tick that needs a kernel before that compiles or loads
     it itself, as numba does on a first call. ``report(line)``, if given, hears when every
-    kernel is ready. Kernels are the process's: a second call returns the first call's thread.
+    kernel is ready. ``also``: (name, function) of the caller's own that compiles kernels
+    (a module function: the processes import it), readied with the sections. Kernels are the
+    process's: a second call returns the first call's thread.
     """
     global _background
     with _background_lock:
         if _background is None:
             def run():
                 start = time.monotonic()
+                extra = [] if also is None else [also]
                 if compile_first:
-                    compile_in_processes(report=lambda line: None,
-                                         niceness=BACKGROUND_NICENESS, stop=_stopping)
-                for name in SECTIONS:
+                    compile_in_processes(report=lambda line: None, niceness=BACKGROUND_NICENESS,
+                                         stop=_stopping, first=extra)
+                for name, function in [(name, SECTIONS[name]) for name in SECTIONS] + extra:
                     if _stopping.is_set():
                         return
-                    warm_up([name])
+                    try:
+                        function()
+                    except RuntimeError:
+                        # The program is ending (a signal): its thread pools refuse new work
+                        # before the atexit hook stops this thread. Nothing is left to ready.
+                        if threading.main_thread().is_alive():
+                            raise
+                        return
                 if report is not None:
                     report('%s, in the background in %.1f s'
                            % (BACKGROUND_READY, time.monotonic() - start))

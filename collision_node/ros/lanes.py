@@ -176,16 +176,22 @@ class JointLane:
         return contacts, passed, sat_tests, sec, nanosec, self._writing[0][:size].tobytes()
 
 
-def compile_ros_kernels():
+def compile_ros_kernels(margins=(False, True), robot=True):
     """Compile the ROS layer's own kernels (the lanes' and the clouds' writer), or load them.
 
-    The node runs it before it subscribes, and collision_node.tools.compile_kernels into
-    numba's cache beforehand: one list, so that neither can miss a kernel the other has.
+    ``margins``: the one pass's variants (without margins, with) the PoseArray lane is
+    compiled for; ``robot``: the joint_states lane too. By default all of them:
+    collision_node.tools.compile_kernels compiles them into numba's cache beforehand, and the
+    node's background warm-up readies them; one list, so that neither can miss a kernel. The
+    node's configure compiles only the variant its scene starts with, and the joint_states
+    lane if it starts with a robot, before it subscribes.
     """
     compile_writer()
     _read_poses(NO_MESSAGE, NO_LAYOUT, 1)
-    for margin in (0.0, 0.01):  # small_scene's two variants: without and with margins
-        _answer_one_pose(margin)
+    for with_margins in margins:  # small_scene's two variants
+        _answer_one_pose(0.01 if with_margins else 0.0)
+    if not robot:
+        return
     # Not of the layout: not merged, so the robot's pass (which no workspace here could feed)
     # is compiled, never run.
     no_joints = np.zeros(0, np.int64)

@@ -19,6 +19,7 @@ import time
 import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.task import Future
 
 from collision_node.ros.signal_latch import LATCH, Stopped
 
@@ -94,8 +95,13 @@ def spin_node_until(node, future, timeout_sec=None):
     if priority is None:
         spin_until(SingleThreadedExecutor(context=node.context), node, future, timeout_sec)
         return
-    with priority.spinning():
-        spin_until(_PartExecutor(node, priority.left_out), node, future, timeout_sec)
+    executor = _PartExecutor(node, priority.left_out)
+    ended = Future()  # the future, or the priority thread's error
+    future.add_done_callback(lambda _: ended.done() or ended.set_result(None))
+    with priority.spinning(ended, executor.wake):
+        spin_until(executor, node, ended, timeout_sec)
+    if ended.done() and ended.result() is not None:  # as a callback's error on this thread
+        raise ended.result()
 
 
 class PriorityInputs:
@@ -133,15 +139,24 @@ class PriorityInputs:
         return entity not in self._entities
 
     @contextlib.contextmanager
-    def spinning(self):
-        """Answer the inputs on a thread of their own while in the block."""
+    def spinning(self, failed, wake):
+        """Answer the inputs on a thread of their own while in the block.
+
+        An error of their callbacks ends the thread: ``failed`` (a Future) then holds it, and
+        ``wake()`` wakes the main thread's executor to see it.
+        """
         executor = _PartExecutor(self._node, self._entities.__contains__)
         stop = threading.Event()
 
         def spin():
-            while not stop.is_set() and executor.context.ok():
-                with ending_on_shutdown(executor.context):
-                    executor.spin_once()
+            try:
+                while not stop.is_set() and executor.context.ok():
+                    with ending_on_shutdown(executor.context):
+                        executor.spin_once()
+            except Exception as error:  # noqa: B902 - whatever it is, the main thread raises it
+                if not failed.done():
+                    failed.set_result(error)
+                wake()
 
         thread = threading.Thread(target=spin, name='priority_inputs', daemon=True)
         thread.start()
@@ -158,6 +173,9 @@ class _PartExecutor(SingleThreadedExecutor):
     """Runs the callbacks of the entities of ``node`` that ``takes(entity)`` picks."""
 
     def __init__(self, node, takes):
+        # rclpy's __del__ reads it: set before an __init__ that a shutdown may interrupt
+        # (SIGINT at any moment) leaves the executor half made.
+        self._sigint_gc = None
         super().__init__(context=node.context)
         self._node = node
         self._takes = takes
