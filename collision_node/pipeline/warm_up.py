@@ -136,13 +136,16 @@ def warm_up_like(world, half_extents, robot=None):
 
 
 def compile_in_processes(sections=None, processes=None, report=print, niceness=0,
-                         stop=None, first=()):
+                         stop=None, last=()):
     """Compile (or load) the kernels of ``sections`` (None: all) into numba's cache.
 
     The sections run in ``processes`` new processes (None: one a CPU), in two waves: first the
-    SHARED_FIRST sections (and ``first``: (name, function) pairs of the caller's own, module
-    functions that compile kernels), which compile the kernels every other section calls,
-    then the rest, heaviest first, a process taking the next section when it is done with one.
+    SHARED_FIRST sections, which compile the kernels every other section calls, then the rest,
+    heaviest first, a process taking the next section when it is done with one, and ``last``:
+    (name, function) pairs of the caller's own, module functions that compile kernels. They
+    call the sections' kernels (the ROS lanes call the one pass and the robot's pass): taken
+    last, they load those from the cache rather than compile them again beside the section
+    that does (the lanes in the first wave made a first start 11 s longer).
     In one wave two processes would compile those shared kernels twice (the SAT under every
     section): numba writes whole files, and _jit serializes the writes to one kernel's index,
     so that is safe, only slower (84 s against 69 s for every section, Intel Xeon). The
@@ -152,9 +155,9 @@ def compile_in_processes(sections=None, processes=None, report=print, niceness=0
     compiled (a kernel compiled by two processes counts twice).
     """
     tasks = [(name, SECTIONS[name]) for name in (SECTIONS if sections is None else sections)]
-    waves = [[task for task in tasks if task[0] in SHARED_FIRST] + list(first),
-             [task for task in tasks if task[0] not in SHARED_FIRST]]
-    count = len(tasks) + len(first)
+    waves = [[task for task in tasks if task[0] in SHARED_FIRST],
+             [task for task in tasks if task[0] not in SHARED_FIRST] + list(last)]
+    count = len(tasks) + len(last)
     processes = max(1, min(count, processes or os.cpu_count()))
     start = reported = time.monotonic()
     kernels = done = 0
@@ -224,7 +227,7 @@ def warm_up_in_background(compile_first, report=None, also=None):
                 extra = [] if also is None else [also]
                 if compile_first:
                     compile_in_processes(report=lambda line: None, niceness=BACKGROUND_NICENESS,
-                                         stop=_stopping, first=extra)
+                                         stop=_stopping, last=extra)
                 for name, function in [(name, SECTIONS[name]) for name in SECTIONS] + extra:
                     if _stopping.is_set():
                         return

@@ -5,8 +5,8 @@
 .ci/setup-venv runs it once the package is installed, so that the first start of the node
 (and of collision_demo) loads the kernels in about a second instead of compiling them. It
 compiles the warm-up's sections (collision_node.pipeline.warm_up.SECTIONS) in one process a
-CPU, and the clouds' kernel and the lanes' (ros/lanes.py) in the first wave of them, into the
-cache the node will read (the same NUMBA_CACHE_DIR, if one is set); a kernel already in the
+CPU, and the clouds' kernel and the lanes' (ros/lanes.py) last, into the cache the node will
+read (the same NUMBA_CACHE_DIR, if one is set); a kernel already in the
 cache is loaded, not compiled. No ROS is started.
 """
 import argparse
@@ -29,7 +29,7 @@ def main(args=None):
           % (len(SECTIONS) + 1, processes), flush=True)
     kernels = compile_in_processes(processes=processes,
                                    report=lambda line: print(line, flush=True),
-                                   first=[('clouds and lanes', compile_ros_kernels)])
+                                   last=[('clouds and lanes', compile_ros_kernels)])
     print('compiled %d kernels in %.0f s' % (kernels, time.monotonic() - start), flush=True)
 
 
