@@ -451,11 +451,11 @@ def test_auto_does_not_flap_at_a_threshold_but_switches_at_once_when_far_off():
         shifted = dynamic_poses[:count] + [1e-6 * tick, 0, 0, 0, 0, 0, 0]
         names.append(world.step(shifted, extents[:count]).stats['broad_phase'])
     assert len(set(names)) == 1, 'flapped'
-    switches = world._general.phase.switches
+    switches = world._steps.general.phase.switches
     for tick in range(SWITCH_AFTER_TICKS):  # clearly above: switches after a few ticks
         shifted = dynamic_poses[:1200] + [1e-6 * tick, 0, 0, 0, 0, 0, 0]
         names.append(world.step(shifted, extents[:1200]).stats['broad_phase'])
-    assert names[-1] == 'grid' and world._general.phase.switches <= switches + 1
+    assert names[-1] == 'grid' and world._steps.general.phase.switches <= switches + 1
     small = world.step(dynamic_poses[:10], extents[:10])  # far below: at once
     assert small.stats['broad_phase'] == 'brute_force'
     large = world.step(dynamic_poses, extents)  # 6,000 bodies: no 8 ticks of brute force

@@ -99,7 +99,7 @@ def run(names, ticks, seed, margin=0.0, continuous=False):
         expected = fresh.step(scene.dynamic_poses, scene.dynamic_extents).contacts
         results = {name: world.step(scene.dynamic_poses, scene.dynamic_extents)
                    for name, world in worlds.items()}
-        yield tick, expected, results, {name: len(world._general.loose.rows)
+        yield tick, expected, results, {name: len(world._steps.general.loose.rows)
                                         for name, world in worlds.items()}
         if continuous:
             previous = scene.dynamic_poses.copy()
@@ -142,28 +142,28 @@ def test_static_changes_take_the_loose_path_and_the_rebuild_path():
     world = World(broad_phase='grid')
     world.set_static(*_set_static_args(scene)[:3])
     world.step(scene.dynamic_poses, scene.dynamic_extents)
-    builds = world._general.phase.stats['static_builds']
+    builds = world._steps.general.phase.stats['static_builds']
     poses, extents, ids = scene.static()
     poses = poses.copy()
     poses[:2, 0] += 1e-3  # two boxes, within their cells: the grid refreshes its copies
     assert world.move_static(ids, poses, extents) == 2
     assert world.move_static(ids, poses, extents) == 0  # unchanged: nothing to do
-    assert not len(world._general.loose.rows)
+    assert not len(world._steps.general.loose.rows)
     poses[:2, 0] += 3.0  # into other cells: loose, the grid's table stays
     assert world.move_static(ids, poses, extents) == 2
     world.step(scene.dynamic_poses, scene.dynamic_extents)
-    assert world._general.phase.stats['static_builds'] == builds
-    assert len(world._general.loose.rows) == 2
+    assert world._steps.general.phase.stats['static_builds'] == builds
+    assert len(world._steps.general.loose.rows) == 2
     poses[:, 0] += 3.0  # all of them: loose, they soon cost more than a rebuild
     world.move_static(ids, poses, extents)
     ticks = 0
-    while len(world._general.loose.rows) and ticks < 10:
-        assert world._general.phase.stats['static_builds'] == builds
+    while len(world._steps.general.loose.rows) and ticks < 10:
+        assert world._steps.general.phase.stats['static_builds'] == builds
         ticks += 1
         world.step(scene.dynamic_poses + [1e-6 * ticks, 0, 0, 0, 0, 0, 0],
                    scene.dynamic_extents)  # a new input: an unchanged one reuses the answer
     assert ticks == -(-LOOSE_REBUILD_WORK // len(scene.dynamic_poses))  # rounded up
-    assert world._general.phase.stats['static_builds'] == builds + 1
+    assert world._steps.general.phase.stats['static_builds'] == builds + 1
 
 
 def two_boxes_world(name):

@@ -279,8 +279,8 @@ def test_swept_bounds_hold_every_pose_in_between(seed):
     world = motion.world()
     world.step(motion.start, motion.extents)
     world.step(motion.end, motion.extents)
-    rows = world._general.dynamic.rows  # the general path's row of each body
-    bounds = world._general.boxes.aabbs[rows]
+    rows = world._steps.general.dynamic.rows  # the general path's row of each body
+    bounds = world._steps.general.boxes.aabbs[rows]
     boxes = Boxes(len(motion.start))
     for t in np.linspace(0.0, 1.0, 1001):
         set_boxes(boxes, 0, poses_at(motion.start, motion.end, np.array([t]))[0],

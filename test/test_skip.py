@@ -31,7 +31,7 @@ def scene():
 def spied_world(scene, monkeypatch, **options):
     world = World(**options)
     world.set_static(scene.static_poses, scene.static_half_extents)
-    phase = world._general.phase
+    phase = world._steps.general.phase
     spies = {'find_pairs': Spy(phase.find_pairs), 'set_static': Spy(phase.set_static),
              'set_boxes': Spy(scene_rows.set_boxes)}
     monkeypatch.setattr(phase, 'find_pairs', spies['find_pairs'])

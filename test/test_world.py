@@ -157,7 +157,7 @@ def test_rows_are_sorted_again_once_the_bodies_travel(phase):
         if tick >= Z_ORDER_MIN_TICKS:  # then the bodies travel 3 m every tick
             poses[:, 0] += 3.0 * (tick - Z_ORDER_MIN_TICKS + 1)
         result = world.step(poses, scene.dynamic_half_extents)
-        rows.append(world._general.dynamic.ids.copy())
+        rows.append(world._steps.general.dynamic.ids.copy())
         if tick % 7 == 0 or tick in (Z_ORDER_MIN_TICKS, 2 * Z_ORDER_MIN_TICKS):
             fresh = World(broad_phase='brute_force')
             fresh.set_static(scene.static_poses, scene.static_half_extents)

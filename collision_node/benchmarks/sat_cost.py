@@ -30,7 +30,7 @@ def sat_cost(bodies, repeats=30, seed=0):
     world.set_static(scene.static_poses, scene.static_half_extents)
     for tick in range(SETTLE_TICKS):
         world.step(scene.dynamic_poses(tick / 60), scene.dynamic_half_extents)
-    path = world._general
+    path = world._steps.general
     boxes, n_static = path.boxes, world.static_count
     pairs, _ = path.phase.find_pairs(boxes, n_static, scene.dynamic_count)
     pairs = path._oriented(pairs).copy()

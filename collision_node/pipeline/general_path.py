@@ -390,8 +390,7 @@ class GeneralPath:
         static_ids, dynamic_ids = self._scene.rows.ids, self.dynamic.ids
         start, velocity, spin = self._sweep
         options = self._scene.options
-        margins = boxes.margins if options.margin > 0.0 or self._scene.rows.own_margins \
-            else None
+        margins = boxes.margins if self._scene.has_margins else None
         toi = np.empty(len(pairs))
 
         def chunk(_, first, stop):
@@ -429,8 +428,7 @@ class GeneralPath:
         if len(self._sat_output[0]) < len(pairs):
             self._sat_output = empty_output(int(SAT_OUTPUT_GROWTH * len(pairs)))
         boxes, options = self.boxes, self._scene.options
-        margins = boxes.margins if options.margin > 0.0 or self._scene.rows.own_margins \
-            else None
+        margins = boxes.margins if self._scene.has_margins else None
 
         def chunk(_, start, stop):
             return collide_pairs(boxes.centers, boxes.rotations, boxes.half_extents,

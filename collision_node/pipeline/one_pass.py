@@ -3,7 +3,7 @@
 :class:`OnePass` checks a step of a small scene with small_scene.check_scene. What the pass
 reads besides its input (the scene's static rows copied into boxes of its own, with room for
 the bodies; the filter table; the margins) is gathered once per version of the scene rows and
-body count (:class:`_Gathered`), with the last input checked and its answer: an identical
+body count (:class:`Gathered`), with the last input checked and its answer: an identical
 input returns that answer again. Its rows are its own, so it keeps nothing of the general
 path's and changes nothing of it.
 
@@ -28,7 +28,7 @@ from collision_node.pipeline.stats import COUNTS, one_pass_stats, Result, reused
 MIN_STATES_PER_CHUNK = 256
 
 
-class _Gathered:
+class Gathered:
     """What one-pass steps read besides their input, for one version and body count."""
 
     __slots__ = ('version', 'n_static', 'arguments', 'last_poses', 'last_half_extents',
@@ -46,6 +46,21 @@ class _Gathered:
         self.last_valid = last_valid
         self.result = None  # its answer
 
+    def answer(self, contacts, counters, same, start):
+        """Return the Result of a check_scene call on these arguments, and keep it.
+
+        ``same``: the input was the last one, whose answer is returned again; else
+        ``contacts`` and ``counters`` are the check's (which found every box valid).
+        ``start``: perf_counter when the input came.
+        """
+        if same:
+            return Result(self.result.contacts, reused(self.result.record))
+        contacts.flags.writeable = False
+        self.result = Result(contacts, one_pass_stats(
+            len(self.last_poses), self.n_static, counters,
+            1e3 * (time.perf_counter() - start), None))
+        return self.result
+
 
 class OnePass:
     """Steps of small scenes in one compiled pass (module docstring)."""
@@ -53,7 +68,7 @@ class OnePass:
     def __init__(self, scene):
         """Read ``scene`` (scene_rows.SceneRows), never write it."""
         self._scene = scene
-        self.gathered = None  # _Gathered of the last step
+        self.gathered = None  # Gathered of the last step
 
     def step(self, poses, half_extents, previous, start):
         """Check ``poses`` (D, 7) with ``half_extents`` as World.step does, in one pass.
@@ -114,22 +129,7 @@ class OnePass:
                 raise InvalidBox(int(bad), REASONS[code])
             if invalid:
                 raise RuntimeError('the SAT met NaN, Inf or overflow on validated input')
-        return self.result(gathered, contacts, counters, same, start)
-
-    @staticmethod
-    def result(gathered, contacts, counters, same, start):
-        """Return the Result of a check_scene call that read ``gathered``, and keep it there.
-
-        ``same``: the input was the last one, whose answer is returned again; else
-        ``contacts`` and ``counters`` are the check's (which found every box valid).
-        """
-        if same:
-            return Result(gathered.result.contacts, reused(gathered.result.record))
-        contacts.flags.writeable = False
-        gathered.result = Result(contacts, one_pass_stats(
-            len(gathered.last_poses), gathered.n_static, counters,
-            1e3 * (time.perf_counter() - start), None))
-        return gathered.result
+        return gathered.answer(contacts, counters, same, start)
 
     @property
     def last_poses(self):
@@ -141,10 +141,10 @@ class OnePass:
         scene = self._scene
         scene.filter.check_count(count)
         last = (np.empty((count, 7)), np.empty(extents.shape), np.zeros(1, np.int64))
-        return _Gathered(scene.version, scene.count, (last, scene.rows.by_id,
-                                                      scene.pass_rows(count),
-                                                      scene.pass_options(count)), *last,
-                         given_shape)
+        return Gathered(scene.version, scene.count, (last, scene.rows.by_id,
+                                                     scene.pass_rows(count),
+                                                     scene.pass_options(count)), *last,
+                        given_shape)
 
 
 class _StatesPass:

@@ -140,14 +140,11 @@ class RobotRows:
 
         ``start``: the time.perf_counter() at which the check began, for its stats.
         """
-        contacts, (passed, sat_tests), state, _, _, invalid = self.check_state(q)
+        contacts, (passed, sat_tests), state, _, _, invalid = check_robot_state(
+            q, *self.state_workspace)
         if state >= 0 or invalid:
             return None
         return self.result(contacts, passed, sat_tests, 1e3 * (time.perf_counter() - start), 1)
-
-    def check_state(self, q):
-        """Return check_robot_states' answer for one state ``q`` (dof,), C-contiguous float64."""
-        return check_robot_state(q, *self.state_workspace)
 
     @property
     def state_workspace(self):

@@ -120,7 +120,7 @@ class SceneRows:
         moved = self.rows.slots[rows]
         write_bodies(self.boxes, 0, colliders.poses[moved], colliders.half_extents[moved],
                      rows, slice(None), self.workers)
-        if self.options.margin > 0.0 or self.rows.own_margins:
+        if self.has_margins:
             pad_bounds(self.boxes.aabbs, self.boxes.radii, self.boxes.margins, rows, 0,
                        self.options.margin / 2)
         self.version += 1
@@ -167,16 +167,18 @@ class SceneRows:
         """
         boxes = self.boxes.grown(self.count + bodies, self.count)
         return (boxes.centers, boxes.rotations, boxes.half_extents, boxes.aabbs, boxes.radii,
-                None if self._no_margin() else boxes.margins)
+                boxes.margins if self.has_margins else None)
 
     def pass_options(self, bodies):
         """Return small_scene's ``options`` for ``bodies`` bodies (its module docstring)."""
         margin = self.options.margin
-        return (None if self._no_margin() else margin, margin / 2,
+        return (margin if self.has_margins else None, margin / 2,
                 self.options.sphere_prefilter, self.filter_table(bodies))
 
-    def _no_margin(self):
-        return self.options.margin == 0.0 and not self.rows.own_margins
+    @property
+    def has_margins(self):
+        """Whether any pair has a margin: the World's, or a collider's own."""
+        return self.options.margin > 0.0 or self.rows.own_margins
 
     def filter_table(self, count):
         """Return small_scene.checked_pairs for ``count`` bodies (all True: no filter at all).

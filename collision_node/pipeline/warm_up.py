@@ -228,7 +228,7 @@ def warm_up_in_background(compile_first, report=None, also=None):
                 if compile_first:
                     compile_in_processes(report=lambda line: None, niceness=BACKGROUND_NICENESS,
                                          stop=_stopping, last=extra)
-                for name, function in [(name, SECTIONS[name]) for name in SECTIONS] + extra:
+                for _, function in list(SECTIONS.items()) + extra:
                     if _stopping.is_set():
                         return
                     try:

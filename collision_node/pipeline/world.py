@@ -15,17 +15,17 @@ answer is the same to the bit whichever path gives it.
   (each checks its whole input first and changes nothing when it raises ValueError).
 - scene_rows.py: what the World derives from the scene and its settings at a version (the
   static rows, their ids, bits and margins, the options). The World writes it, paths read it.
-- general_path.py: a broad phase over static and dynamic rows, the still-body cache, the loose
-  statics and the continuous sweeps; any size of scene.
-- one_pass.py: a small scene in one compiled call, discrete, with ``ONE_PASS_PHASES``; and the
-  batches of ``check_states``. robot_path.py: joint values in, trajectories.
+- steps.py: which path checks a step, and the last accepted input: general_path.py (a broad
+  phase over static and dynamic rows, the still-body cache, the loose statics and the
+  continuous sweeps; any size of scene) or one_pass.py (a small scene in one compiled call,
+  discrete, with ``ONE_PASS_PHASES``).
+- one_pass.py's batches: ``check_states``. robot_path.py: joint values in, trajectories.
 
 How a change reaches every path: a verb or a setter changes the scene rows, which draw a new
 version (a setting becomes new ``Options`` there). Each path keys what it keeps on those
 versions and its own inputs, and meets the change on its next call: no path drops another's
 cache. A continuous step's motion starts at the last accepted input, whichever path took it.
 """
-import time
 from typing import NamedTuple
 
 import numpy as np
@@ -34,22 +34,15 @@ from collision_node.pipeline.broadphase import make_broad_phase, Settings
 from collision_node.pipeline.contacts import CONTACT_DTYPE, DYNAMIC, STATIC  # noqa: F401
 from collision_node.pipeline.continuous import CONTINUOUS_TOLERANCE
 from collision_node.pipeline.filters import ALL_CATEGORIES, DEFAULT_CATEGORY, PairFilter
-from collision_node.pipeline.general_path import GeneralPath
 from collision_node.pipeline.obb import check_margin, check_tolerance
-from collision_node.pipeline.one_pass import Batches, OnePass
+from collision_node.pipeline.one_pass import Batches
 from collision_node.pipeline.robot_bodies import DEFAULT_RESOLUTION, RobotBodies
 from collision_node.pipeline.robot_path import RobotPath
-from collision_node.pipeline.scene_rows import as_poses, Options, SceneRows
+from collision_node.pipeline.scene_rows import Options, SceneRows
 from collision_node.pipeline.static_scene import StaticScene
 from collision_node.pipeline.stats import Result  # noqa: F401 (re-exported)
+from collision_node.pipeline.steps import ONE_PASS_PAIRS, ONE_PASS_PHASES, Steps  # noqa: F401
 from collision_node.pipeline.workers import Workers
-
-# Small scenes are checked in one pass when the broad phase is one of these (the pass is brute
-# force) and a tick has at most this many pairs to test, ~25 µs of AABB tests: the general
-# path's stages cost ~60 µs of calls however few the bodies, and its broad phases catch up
-# with testing every pair at about 4x this many (doc/benchmarks.md).
-ONE_PASS_PHASES = ('auto', 'brute_force')
-ONE_PASS_PAIRS = 16384
 
 
 class Description(NamedTuple):
@@ -81,12 +74,9 @@ class World:
             bool(continuous), check_tolerance(continuous_tolerance)), self._workers)
         self._rows.derive(self._scene.colliders)
         self._filters_given = (DEFAULT_CATEGORY, ALL_CATEGORIES, np.zeros((0, 4), np.int64))
-        self._general = GeneralPath(self._rows)  # raises ValueError on an unknown phase
-        self._one_pass = OnePass(self._rows)
+        self._steps = Steps(self._rows)  # raises ValueError on an unknown phase
         self._batches = Batches(self._rows)
         self._robot = RobotPath(self._rows, self._batches)
-        self._probe = None  # broad_phase_pairs' own GeneralPath, made at its first call
-        self._previous = None  # the poses of the last accepted input (the motion's start)
 
     @property
     def broad_phase(self):
@@ -108,6 +98,11 @@ class World:
     @margin.setter
     def margin(self, value):
         self._set_options(margin=check_margin(value))
+
+    @property
+    def has_margins(self):
+        """Whether any pair has a margin: :attr:`margin`, or a collider's own."""
+        return self._rows.has_margins
 
     @property
     def continuous(self):
@@ -280,46 +275,22 @@ class World:
         bodies that kept their pose and size since the previous step keep their contacts
         without a SAT. The result's contacts are read-only: later steps reuse them.
         """
-        start = time.perf_counter()
-        result = self._one_pass.step_as_before(poses, half_extents, start)  # a robot's tick
-        if result is not None:
-            self._previous = self._one_pass.last_poses
-            return result
-        poses = as_poses(poses)
-        half_extents = np.asarray(half_extents, dtype=np.float64)
-        n, options = len(poses), self._rows.options
-        small = n * (n - 1) // 2 + n * self._rows.count <= ONE_PASS_PAIRS
-        in_one_pass = small and not options.continuous and options.broad_phase in ONE_PASS_PHASES
-        path = self._one_pass if in_one_pass else self._general
-        result = path.step(poses, half_extents, self._previous, start)
-        self._previous = path.last_poses
-        return result
+        return self._steps.step(poses, half_extents)
 
     def pass_as_before(self, count, half_extents):
         """Return what a step of ``count`` bodies of ``half_extents`` passes check_scene, or None.
 
         For a caller that runs small_scene.check_scene in a kernel of its own, straight from
-        its input (the node's PoseLane): the arguments after the input's, while a step of that
-        many bodies would be checked in one pass as the last one was (OnePass.as_before). It
-        then hands the check's outcome to :meth:`passed`, as the step's answer.
+        its input (the node's PoseLane): the one pass's gathering (its ``arguments``, after
+        the input's), while a step of that many bodies would be checked in one pass as the
+        last one was. The caller then hands the check's outcome to its ``answer`` method,
+        which returns the step's Result.
         """
-        gathered = self._one_pass.as_before(count, half_extents)
-        if gathered is not None:
-            self._previous = gathered.last_poses
-        return gathered
-
-    def passed(self, gathered, contacts, counters, same, start):
-        """Return the Result of a check_scene call on :meth:`pass_as_before`'s arguments.
-
-        ``start``: perf_counter when the input came; every box was valid (else the caller
-        steps the World, which says why it is not).
-        """
-        return self._one_pass.result(gathered, contacts, counters, same, start)
+        return self._steps.pass_as_before(count, half_extents)
 
     def broad_phase_pairs(self, poses, half_extents):
         """Return a discrete general step's BroadPhasePairs at these poses; changes no step."""
-        self._probe = self._probe or GeneralPath(self._rows, continuous=False)
-        return self._probe.broad_phase_pairs(poses, half_extents)
+        return self._steps.broad_phase_pairs(poses, half_extents)
 
     def check_states(self, states, half_extents):
         """Check K independent states of the D dynamic bodies against the static scene.
@@ -344,7 +315,7 @@ class World:
         """
         self._scene.validate()
         self._rows.validate(self._scene.colliders)
-        self._general.validate()
+        self._steps.general.validate()
 
     def describe(self):
         """Return a :class:`Description` of this World: settings, colliders, filters, robot."""

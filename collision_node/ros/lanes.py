@@ -126,7 +126,7 @@ class PoseLane:
             *scene.arguments, previous, self._writing)
         if not answered:
             return None
-        result = world.passed(scene, contacts, counters, same, start)
+        result = scene.answer(contacts, counters, same, start)
         return result, self._writing[0][:size].tobytes(), poses, sec, nanosec
 
 

@@ -296,8 +296,8 @@ class CollisionNode(LifecycleNode):
         with compile_progress(self.get_logger().info) as progress:
             warm_up_like(world, config.dynamic_half_extents,
                          robot if config.robot_description else None)
-            margins = config.margin > 0.0 or any(c.margin > 0.0 for c in config.colliders)
-            compile_ros_kernels(margins=(margins,), robot=bool(config.robot_description))
+            compile_ros_kernels(margins=(world.has_margins,),
+                                robot=bool(config.robot_description))
         self._background_warm_up = warm_up_in_background(
             progress.compiled > 0, self._background_ready,
             also=('clouds and lanes', compile_ros_kernels))
