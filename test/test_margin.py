@@ -182,16 +182,20 @@ def test_a_static_collider_s_own_margin_adds_to_the_world_s():
 
 
 def test_distance_statistics():
+    """Of a step's contacts, and of a batch's (whose rows have the state's index first)."""
     world = World('brute_force', margin=MARGIN)
-    _, result = scene_step(world)
-    distance = result.contacts['distance']
-    stats = result.stats
-    assert stats['near_pairs'] == np.count_nonzero(distance > 0)
-    assert stats['colliding_pairs'] == np.count_nonzero(distance <= 0)
-    closest = int(np.argmin(distance))
-    assert stats['min_distance'] == distance[closest]
-    assert stats['min_distance_pair'] == tuple(int(result.contacts[closest][k]) for k in (
-        'id_a', 'type_a', 'id_b', 'type_b'))
+    scene, step = scene_step(world)
+    states = np.stack([scene.dynamic_poses(time_s) for time_s in (0.0, 0.2, 0.4)])
+    for result in (step, world.check_states(states, scene.dynamic_half_extents)):
+        distance = result.contacts['distance']
+        stats = result.stats
+        assert stats['near_pairs'] == np.count_nonzero(distance > 0) > 0
+        assert stats['colliding_pairs'] == np.count_nonzero(distance <= 0) > 0
+        closest = int(np.argmin(distance))
+        assert stats['min_distance'] == distance[closest]
+        assert stats['min_distance_pair'] == tuple(int(result.contacts[closest][k]) for k in (
+            'id_a', 'type_a', 'id_b', 'type_b'))
+        assert all(type(value) is int for value in stats['min_distance_pair'])
 
 
 def test_the_margin_and_tolerance_rules_are_written_once():

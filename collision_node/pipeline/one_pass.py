@@ -92,8 +92,7 @@ class OnePass:
         is converted or gathered again: World.step tries this first.
         """
         if type(poses) is np.ndarray and poses.ndim == 2 and poses.shape[1] == 7 \
-                and poses.dtype == np.float64 and poses.flags.c_contiguous \
-                and poses.flags.writeable:
+                and poses.dtype == np.float64 and _writable_c_array(poses):
             gathered = self.as_before(len(poses), half_extents)
             if gathered is not None:
                 return self._step_gathered(poses, half_extents, gathered, start)
@@ -110,8 +109,7 @@ class OnePass:
                 and count == len(gathered.last_poses) \
                 and type(half_extents) is np.ndarray \
                 and half_extents.shape == gathered.half_extents_shape \
-                and half_extents.dtype == np.float64 and half_extents.flags.c_contiguous \
-                and half_extents.flags.writeable:
+                and half_extents.dtype == np.float64 and _writable_c_array(half_extents):
             return gathered
         return None
 
@@ -245,6 +243,12 @@ class Batches:
             counters += result.record[COUNTS]
         contacts = np.concatenate(found) if found else np.zeros(0, STATE_CONTACT_DTYPE)
         return contacts, counters
+
+
+def _writable_c_array(array):
+    """Whether ``array`` (an ndarray) is C-contiguous and writable, as kernels take it."""
+    flags = array.flags  # a new object at each read
+    return flags.c_contiguous and flags.writeable
 
 
 def per_body_extents(half_extents, count):

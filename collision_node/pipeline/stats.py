@@ -130,8 +130,9 @@ def distance_stats(contacts):
     if closest < 0:
         return {'colliding_pairs': 0, 'near_pairs': 0, 'min_distance': math.nan,
                 'min_distance_pair': None}
-    row = contacts[closest]
+    # One row as Python values (~0.4 µs; four fields of a numpy row cost 1.4 µs): the pair is
+    # id_a, type_a, id_b, type_b, the four fields before distance and toi, the last two of
+    # both contact dtypes.
+    row = contacts.item(closest)
     return {'colliding_pairs': len(contacts) - near, 'near_pairs': near,
-            'min_distance': smallest,
-            'min_distance_pair': (int(row['id_a']), int(row['type_a']), int(row['id_b']),
-                                  int(row['type_b']))}
+            'min_distance': smallest, 'min_distance_pair': row[-6:-2]}
