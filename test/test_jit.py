@@ -22,6 +22,7 @@ import time
 
 import pytest
 
+from collision_node.pipeline import warm_up
 from collision_node.pipeline._jit import CACHE_LOCK
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -292,3 +293,26 @@ def test_a_compile_waits_to_add_to_an_index_another_process_holds(tmp_path):
             cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
         assert done.returncode == 0, done.stderr
         assert done.stdout.split() == ['1', '0']  # loaded, not compiled
+
+
+def test_the_complete_cache_marker_follows_the_sources(tmp_path, monkeypatch):
+    """A start compiles in other processes unless a full compile marked these sources done."""
+    package = tmp_path / 'package'
+    (package / 'sub').mkdir(parents=True)
+    (package / 'a.py').write_text('x = 1\n')
+    (package / 'sub' / 'b.py').write_text('y = 2\n')
+    stamp = warm_up.source_stamp(package)
+    assert warm_up.source_stamp(package) == stamp
+    later = os.stat(package / 'sub' / 'b.py').st_mtime_ns + 10 ** 9
+    os.utime(package / 'sub' / 'b.py', ns=(later, later))  # an edit of the same size
+    assert warm_up.source_stamp(package) != stamp
+
+    cache = tmp_path / 'cache'
+    cache.mkdir()
+    (cache / (warm_up.COMPLETE_MARKER + 'other')).touch()  # another version's marker
+    marker = str(cache / (warm_up.COMPLETE_MARKER + stamp))
+    monkeypatch.setattr(warm_up, '_marker_path', lambda: marker)
+    assert not warm_up.cache_complete()
+    warm_up._mark_complete()
+    assert warm_up.cache_complete()
+    assert os.listdir(cache) == [os.path.basename(marker)]

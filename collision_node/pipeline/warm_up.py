@@ -15,12 +15,18 @@ readies the rest while it answers (doc/design.md, JIT).
 """
 import atexit
 import functools
+import glob
+import hashlib
 import itertools
 import multiprocessing
 import os
+import pathlib
+import sys
 import threading
 import time
 
+import llvmlite.binding
+import numba
 import numpy as np
 
 from collision_node.pipeline.broadphase import NAMES
@@ -38,6 +44,7 @@ from collision_node.pipeline.world import ONE_PASS_PAIRS, ONE_PASS_PHASES, World
 BACKGROUND_NICENESS = 10  # the background compile yields the CPUs to the node's ticks
 STOP_POLL_S = 0.2  # how often the parts' compile looks whether it is asked to stop
 BACKGROUND_READY = 'every other kernel ready'  # warm_up_in_background's report, once done
+COMPLETE_MARKER = 'collision_node-complete-'  # + the sources' stamp: see cache_complete
 WARM_UP_BODIES = 64  # half static: enough for every broad phase to run its full code path
 AUTO_SPREAD_BODIES = 2 * GRID_BODIES  # auto measures the boxes' spread from this many bodies
 # Half static, half dynamic (n/2 · (n/2 - 1) / 2 + n²/4 pairs): past ONE_PASS_PAIRS.
@@ -181,7 +188,51 @@ def compile_in_processes(sections=None, processes=None, report=print, niceness=0
                 kernels += compiled
                 report('compiled part %d of %d (%s: %d kernels, %.1f s), %.0f s so far' % (
                     done, count, name, compiled, seconds, time.monotonic() - start))
+    if sections is None:
+        _mark_complete()
     return kernels
+
+
+def cache_complete():
+    """Whether every section's kernels were compiled into numba's cache for these sources.
+
+    :func:`compile_in_processes` leaves a marker once it compiled every section; a start whose
+    own kernels all loaded may still find others missing (an earlier start stopped during its
+    background compile), and then has them compiled in other processes too.
+    """
+    return os.path.exists(_marker_path())
+
+
+def _mark_complete():
+    """Leave the marker of :func:`cache_complete`, and remove those of other sources."""
+    marker = _marker_path()
+    for stale in glob.glob(os.path.join(os.path.dirname(marker), COMPLETE_MARKER + '*')):
+        if stale != marker:
+            os.remove(stale)
+    pathlib.Path(marker).touch()
+
+
+def _marker_path():
+    """Return the marker's path: in this module's kernels' cache, named by :func:`source_stamp`."""
+    cache = box_distance._cache._cache_path  # numba's cache directory for the pipeline's kernels
+    package = pathlib.Path(__file__).resolve().parent.parent
+    return os.path.join(cache, COMPLETE_MARKER + source_stamp(package))
+
+
+def source_stamp(package):
+    """Return a digest of what numba checks before it loads a cached kernel, for ``package``.
+
+    Each source file's time and size (numba's own test), numba's and Python's versions, and
+    this CPU: an edited or updated package, or another machine, gets another stamp.
+    """
+    digest = hashlib.sha1()
+    for path in sorted(pathlib.Path(package).rglob('*.py')):
+        status = path.stat()
+        line = '%s %d %d\n' % (path.relative_to(package), status.st_mtime_ns, status.st_size)
+        digest.update(line.encode())
+    digest.update(('%s %s %s' % (numba.__version__, sys.version,
+                                 llvmlite.binding.get_host_cpu_name())).encode())
+    return digest.hexdigest()[:16]
 
 
 def _next_answer(finished, stop, waiting):
@@ -209,7 +260,8 @@ def _compile_task(task):
 def warm_up_in_background(compile_first, report=None, also=None):
     """Ready every kernel in a thread of its own, while the process goes on; return the thread.
 
-    ``compile_first``: the cache is probably cold (a start just compiled): the kernels are
+    ``compile_first``: the cache is probably cold (a start just compiled, or it is not
+    :func:`cache_complete`): the kernels are
     first compiled in other processes (:func:`compile_in_processes`, at a lower priority), so
     that the compile holds neither this process's interpreter lock nor its CPU time. Then
     :func:`warm_up` in this process loads every kernel from numba's cache (about a second), so

@@ -45,8 +45,8 @@ at most a tenth of the node's time (see MARKER_COST_FACTOR). They are written as
 JIT. The kernels the configured World runs are compiled (or loaded from numba's cache) by a
 warm-up before the subscription exists (pipeline.warm_up.warm_up_like), so the first ticks do not
 compile; a compile is logged as it goes. The kernels of other settings and body counts are readied
-in the background from then on (warm_up_in_background: on a cold cache compiled in other
-processes, then loaded here), so that a later tick does not compile either. .ci/setup-venv
+in the background from then on (warm_up_in_background: on a cold or partial cache compiled in
+other processes, then loaded here), so that a later tick does not compile either. .ci/setup-venv
 compiles every kernel ahead with collision_node.tools.compile_kernels. numba caches next to
 the sources when that directory is writable and otherwise in its user-wide cache
 (~/.cache/numba); NUMBA_CACHE_DIR overrides both. The node leaves that choice to numba: the
@@ -83,7 +83,8 @@ from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
 from collision_node.pipeline.jit_progress import compile_progress
 from collision_node.pipeline.robot import Robot
 from collision_node.pipeline.static_scene import InvalidCollider
-from collision_node.pipeline.warm_up import warm_up_in_background, warm_up_like
+from collision_node.pipeline.warm_up import (cache_complete, warm_up_in_background,
+                                             warm_up_like)
 from collision_node.pipeline.world import World
 from collision_node.ros import diagnostics, params
 from collision_node.ros.cdr import parse_joint_state, parse_pose_array
@@ -299,7 +300,7 @@ class CollisionNode(LifecycleNode):
             compile_ros_kernels(margins=(world.has_margins,),
                                 robot=bool(config.robot_description))
         self._background_warm_up = warm_up_in_background(
-            progress.compiled > 0, self._background_ready,
+            progress.compiled > 0 or not cache_complete(), self._background_ready,
             also=('clouds and lanes', compile_ros_kernels))
         self._cloud_writer = CloudWriter()
         # The robot's answers carry their state (World.check_joints); collisions does not.
