@@ -319,8 +319,9 @@ def test_a_trackers_pose_arrays_are_answered_as_the_full_way(margin, half_extent
             poses = random_poses(rng, 7)
         sec, nanosec = int(rng.integers(-2**31, 2**31)), int(rng.integers(0, 2**32))
         buffer = pose_array_cdr(poses, sec, nanosec, frame_id='')
-        answer = lane.answer(buffer, config, world, writer, 0.0)
-        result, cloud, read, lane_sec, lane_nanosec = answer
+        cloud, read, lane_sec, lane_nanosec = lane.answer(buffer, config, world, writer)
+        result = lane.result(0.0, 1.0)
+        assert result.phase_ms == (0.0, 1e3) or result.stats['reused']
         expected, expected_cloud = full_way_answer(reference, buffer, config)
         assert np.array_equal(result.contacts, expected.contacts)
         assert cloud == expected_cloud
@@ -340,25 +341,27 @@ def test_pose_arrays_the_lane_cannot_answer_go_the_full_way():
     world, _ = pose_scene(0.0)
     lane, writer = PoseLane(), CloudWriter()
     learned = pose_array_cdr(random_poses(rng, 7))
-    assert lane.answer(learned, config, world, writer, 0.0) is None  # nothing learned yet
+    assert lane.answer(learned, config, world, writer) is None  # nothing learned yet
     full_way_answer(world, learned, config)
     lane.learn(learned, parse_pose_array(learned), config)
-    assert lane.answer(learned, config, world, writer, 0.0) is not None
-    assert lane.answer(learned, PoseConfig(np.full(3, 0.3)), world, writer, 0.0) is None
-    assert lane.answer(pose_array_cdr(random_poses(rng, 8)), config, world, writer, 0.0) is None
+    assert lane.answer(learned, config, world, writer) is not None
+    assert lane.result(0.0, 0.0).stats['reused']  # the full way's input again
+    assert lane.answer(learned, PoseConfig(np.full(3, 0.3)), world, writer) is None
+    assert lane.answer(pose_array_cdr(random_poses(rng, 8)), config, world, writer) is None
     invalid = random_poses(rng, 7)
     invalid[3, 3:] = 0.0  # a zero quaternion: the World says why, the lane does not answer
-    assert lane.answer(pose_array_cdr(invalid), config, world, writer, 0.0) is None
+    assert lane.answer(pose_array_cdr(invalid), config, world, writer) is None
     with pytest.raises(ValueError, match='body 3'):
         full_way_answer(world, pose_array_cdr(invalid), config)
     invalid[3, 3:] = (0.0, 0.0, 0.0, 1.0)
     invalid[5, 0] = np.nan
-    assert lane.answer(pose_array_cdr(invalid), config, world, writer, 0.0) is None
+    assert lane.answer(pose_array_cdr(invalid), config, world, writer) is None
     # A scene change: the World gathers again on its next full step, then the lane answers.
     world.set_static(random_poses(rng, 2), np.full((2, 3), 0.2))
-    assert lane.answer(learned, config, world, writer, 0.0) is None
+    assert lane.answer(learned, config, world, writer) is None
     full_way_answer(world, learned, config)
-    assert lane.answer(learned, config, world, writer, 0.0) is not None
+    assert lane.answer(learned, config, world, writer) is not None
+    assert lane.result(0.0, 0.0).stats['reused']  # the full way's input again
     # A continuous World steps past the one pass: the full way only.
     world.continuous = True
-    assert lane.answer(learned, config, world, writer, 0.0) is None
+    assert lane.answer(learned, config, world, writer) is None

@@ -46,19 +46,20 @@ class Gathered:
         self.last_valid = last_valid
         self.result = None  # its answer
 
-    def answer(self, contacts, counters, same, start):
+    def answer(self, contacts, counters, same, start, end=None):
         """Return the Result of a check_scene call on these arguments, and keep it.
 
         ``same``: the input was the last one, whose answer is returned again; else
         ``contacts`` and ``counters`` are the check's (which found every box valid).
-        ``start``: perf_counter when the input came.
+        ``start``, ``end``: perf_counter when the input came and when the check was done
+        (None: now).
         """
         if same:
             return Result(self.result.contacts, reused(self.result.record))
         contacts.flags.writeable = False
+        end = time.perf_counter() if end is None else end
         self.result = Result(contacts, one_pass_stats(
-            len(self.last_poses), self.n_static, counters,
-            1e3 * (time.perf_counter() - start), None))
+            len(self.last_poses), self.n_static, counters, 1e3 * (end - start), None))
         return self.result
 
 

@@ -26,7 +26,6 @@ way, which answers it or says why. ``test/test_lanes.py`` holds each lane to the
 message by message.
 """
 import math
-import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -76,6 +75,7 @@ class PoseLane:
         self._scene = None  # the World's pass_as_before arguments the lane last checked with
         self._extents = None  # their half extents, as check_scene takes them
         self._writing = None  # the cloud writer's kernel argument, for that scene
+        self._outcome = None  # the last answer's check (result() makes its Result)
 
     def learn(self, buffer, message, config):
         """Take the layout of ``buffer``, read the full way (``message``) and let by ``config``.
@@ -98,13 +98,14 @@ class PoseLane:
         return PoseArrayView(sec, nanosec, learned.frame_id, poses, learned.count_end) \
             if read else None
 
-    def answer(self, buffer, config, world, writer, start):
+    def answer(self, buffer, config, world, writer):
         """Check ``buffer`` as ``world.step`` would and write its cloud, in one kernel.
 
-        Returns (Result, the cloud's CDR bytes as ``writer`` writes them in the
-        configuration's frame, poses, sec, nanosec), or None: the full way (another layout or
-        configuration, a step the World would not check in one pass as before, an invalid
-        pose). ``start``: perf_counter when the input came.
+        Returns (the cloud's CDR bytes as ``writer`` writes them in the configuration's frame,
+        poses, sec, nanosec), or None: the full way (another layout or configuration, a step
+        the World would not check in one pass as before, an invalid pose). The step's Result
+        is :meth:`result`'s, which the caller asks for once the cloud is out, before it lets
+        go of the World.
         """
         layout = self._layout
         if layout.owner is not config:
@@ -126,8 +127,17 @@ class PoseLane:
             *scene.arguments, previous, self._writing)
         if not answered:
             return None
-        result = scene.answer(contacts, counters, same, start)
-        return result, self._writing[0][:size].tobytes(), poses, sec, nanosec
+        self._outcome = scene, contacts, counters, same
+        return self._writing[0][:size].tobytes(), poses, sec, nanosec
+
+    def result(self, start, end):
+        """Return the Result of the last answer, and let the World keep it (World.step's).
+
+        ``start``, ``end``: perf_counter when the input came and when the check was done.
+        """
+        scene, contacts, counters, same = self._outcome
+        self._outcome = None
+        return scene.answer(contacts, counters, same, start, end)
 
 
 class JointLane:
@@ -209,7 +219,8 @@ def _answer_one_pose(margin):
     world.step(message.poses, config.dynamic_half_extents)
     lane = PoseLane()
     lane.learn(buffer, message, config)
-    assert lane.answer(buffer, config, world, CloudWriter(), time.perf_counter()) is not None
+    assert lane.answer(buffer, config, world, CloudWriter()) is not None
+    lane.result(0.0, 0.0)
 
 
 @kernel

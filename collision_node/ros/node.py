@@ -512,14 +512,18 @@ class CollisionNode(LifecycleNode):
         return gated
 
     def _on_input(self, buffer, info):
-        self._monitor.received()
-        self._monitor.dropped(self._sequence_gap(info))
         if self._config.tick_rate_hz > 0.0:
+            self._count_input(info)
             if self._pending is not None:
                 self._monitor.dropped()
             self._pending = buffer
         else:
-            self._check(buffer)
+            self._check(buffer)  # first: after idle time, all that runs before it is latency
+            self._count_input(info)
+
+    def _count_input(self, info):
+        self._monitor.received()
+        self._monitor.dropped(self._sequence_gap(info))
 
     def _on_tick_timer(self):
         buffer, self._pending = self._pending, None
@@ -551,12 +555,17 @@ class CollisionNode(LifecycleNode):
                 raise InputError('refused while a robot model is loaded: its boxes are the '
                                  'dynamic bodies (publish joint_states)')
             with self._world_lock:
-                answer = self._pose_lane.answer(buffer, config, self._world, self._cloud_writer,
-                                                start)
-            if answer is not None:  # read, checked and written in one kernel (lanes.py)
-                result, cloud, poses, sec, nanosec = answer
-                self._publish_tick(start, start, result, sec, nanosec, poses,
-                                   config.dynamic_half_extents, cloud=cloud)
+                answer = self._pose_lane.answer(buffer, config, self._world, self._cloud_writer)
+                if answer is not None:  # read, checked and written in one kernel (lanes.py)
+                    cloud, poses, sec, nanosec = answer
+                    stepped = time.perf_counter()
+                    try:
+                        self._collisions_publisher.publish(cloud)  # then what it needs not
+                    finally:  # the World keeps the answer it reuses for the same input
+                        result = self._pose_lane.result(start, stepped)
+            if answer is not None:
+                self._record_tick(start, start, stepped, 0.0, result, sec, nanosec, poses,
+                                  config.dynamic_half_extents)
                 return
             message = self._pose_lane.read(buffer, config)
             if message is None:  # not of the last layout read: the full way (lanes.py)
@@ -572,18 +581,27 @@ class CollisionNode(LifecycleNode):
                            config.dynamic_half_extents)
 
     def _publish_tick(self, start, checked, result, sec, nanosec, poses, half_extents,
-                      writer=None, cloud=None):
-        """Publish a check's answer and markers, and record the tick (perf_counter times).
+                      writer=None):
+        """Publish a check's answer, then its markers and record (perf_counter times).
 
-        ``writer``: the CloudWriter of the result's contacts (default: a step's); ``cloud``:
-        their cloud's bytes, when the check wrote them; ``poses`` None: no markers this time.
+        ``writer``: the CloudWriter of the result's contacts (default: a step's).
         """
         stepped = time.perf_counter()
-        if cloud is None:
-            cloud = (writer or self._cloud_writer).serialize(result.contacts, sec, nanosec,
-                                                             self._config.frame_id)
+        cloud = (writer or self._cloud_writer).serialize(result.contacts, sec, nanosec,
+                                                         self._config.frame_id)
         output_ms = 1e3 * (time.perf_counter() - stepped)
         self._collisions_publisher.publish(cloud)
+        self._record_tick(start, checked, stepped, output_ms, result, sec, nanosec, poses,
+                          half_extents)
+
+    def _record_tick(self, start, checked, stepped, output_ms, result, sec, nanosec, poses,
+                     half_extents):
+        """Publish the markers when due and record the tick, once the answer is out.
+
+        perf_counter times: ``start`` the input came, ``checked`` its checks were done,
+        ``stepped`` the check was; ``output_ms`` spent writing the cloud after it; ``poses``
+        None: no markers this time.
+        """
         now = time.monotonic()
         if poses is not None and now >= self._next_markers_s:
             output_ms += 1e3 * self._publish_markers(sec, nanosec, poses, half_extents,
@@ -748,13 +766,14 @@ class CollisionNode(LifecycleNode):
             if answer is None:
                 return False
             contacts, passed, sat_tests, sec, nanosec, cloud = answer
-            result = rows.result(contacts, passed, sat_tests,
-                                 1e3 * (time.perf_counter() - start), 1)
+            stepped = time.perf_counter()
+            self._collisions_publisher.publish(cloud)  # then what the answer needs not
+            result = rows.result(contacts, passed, sat_tests, 1e3 * (stepped - start), 1)
             half_extents = self._robot.half_extents
             poses = self._marker_poses(self._joints)
         self._monitor.received()
         self._monitor.missing_joints(())
-        self._publish_tick(start, start, result, sec, nanosec, poses, half_extents, cloud=cloud)
+        self._record_tick(start, start, stepped, 0.0, result, sec, nanosec, poses, half_extents)
         return True
 
     def _marker_poses(self, joints):
