@@ -20,10 +20,12 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from collision_node.pipeline import warm_up
-from collision_node.pipeline._jit import CACHE_LOCK
+from collision_node.pipeline._jit import CACHE_LOCK, compiled_for
+from collision_node.pipeline.frames import sum_abs
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DOMAIN_ID = random.Random(os.getpid() + 11).randint(1, 200)
@@ -316,3 +318,12 @@ def test_the_complete_cache_marker_follows_the_sources(tmp_path, monkeypatch):
     warm_up._mark_complete()
     assert warm_up.cache_complete()
     assert os.listdir(cache) == [os.path.basename(marker)]
+
+
+def test_compiled_for_returns_the_dispatchers_own_compiled_function():
+    """The lanes' typed calls: the same answer as through the dispatcher, compiled if need be."""
+    arguments = ((np.float64(-1.5), np.float64(2.0), np.float64(-0.25)),)
+    compiled = compiled_for(sum_abs, arguments)
+    assert compiled(*arguments) == sum_abs(*arguments) == 3.75
+    integers = ((np.int64(-1), np.int64(2), np.int64(3)),)  # a type never compiled before
+    assert compiled_for(sum_abs, integers)(*integers) == 6

@@ -10,6 +10,11 @@ which compiles that kernel (and what it inlines) once more for that constant alo
 that passes a constant where other calls pass variables passes ``np.int64(0)`` or
 ``np.bool_(False)`` instead: values of the variables' types.
 
+Typed calls. A dispatcher types every argument at every call before it runs the compiled
+code (~0.15 µs an array warm; for the PoseArray lane's 17 arrays, 2.5 µs warm and ~30 µs
+after 5 ms of idle time on the AMD EPYC VM). A caller that makes one call many times with
+arguments of the same types takes :func:`compiled_for` once and calls that instead.
+
 Cache. numba caches next to the sources when that directory is writable, else in the user's
 cache directory (~/.cache/numba), and NUMBA_CACHE_DIR overrides both. When none of them is
 writable (a read-only install run by a user without a writable home, e.g. a service), numba
@@ -65,6 +70,18 @@ def inlined_kernel(function):
     dispatcher = _njit(function, dict(JIT_OPTIONS, inline='always'))
     KERNELS.add(dispatcher)
     return dispatcher
+
+
+def compiled_for(dispatcher, arguments):
+    """Return the compiled function ``dispatcher`` runs for ``arguments``; compile it if need be.
+
+    It skips the dispatcher's typing of each argument, and so its check: every later call
+    must pass arguments of these types (dtype, dimensions, layout), or it reads them wrong.
+    """
+    signature = tuple(dispatcher.typeof_pyval(argument) for argument in arguments)
+    if signature not in dispatcher.overloads:
+        dispatcher.compile(signature)
+    return dispatcher.get_overload(signature)
 
 
 def _njit(function, options):

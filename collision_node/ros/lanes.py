@@ -30,7 +30,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from collision_node.pipeline._jit import inlined_kernel, kernel
+from collision_node.pipeline._jit import compiled_for, inlined_kernel, kernel
 from collision_node.pipeline.contacts import CONTACT_DTYPE, STATE_CONTACT_DTYPE
 from collision_node.pipeline.robot_pass import check_robot_state
 from collision_node.pipeline.small_scene import check_scene
@@ -75,6 +75,7 @@ class PoseLane:
         self._scene = None  # the World's pass_as_before arguments the lane last checked with
         self._extents = None  # their half extents, as check_scene takes them
         self._writing = None  # the cloud writer's kernel argument, for that scene
+        self._kernel = None  # _answer_poses compiled for that scene's arguments (_jit)
         self._outcome = None  # the last answer's check (result() makes its Result)
 
     def learn(self, buffer, message, config):
@@ -120,11 +121,16 @@ class PoseLane:
             self._extents = extents.reshape(1, 3) if extents.ndim == 1 else extents
             self._writing = writer.writing(config.frame_id,
                                            count * (count - 1) // 2 + count * scene.n_static)
-            self._scene = scene
-        previous = NO_CONTACTS if scene.result is None else scene.result.contacts
-        answered, contacts, counters, same, poses, size, sec, nanosec = _answer_poses(
-            np.frombuffer(buffer, np.uint8), layout.bytes, count, self._extents,
-            *scene.arguments, previous, self._writing)
+            self._scene, self._kernel = scene, None
+        # Of the same types at each call: the message's bytes, the gathering's arrays, the
+        # last contacts (NO_CONTACTS, or a step's: both read-only CONTACT_DTYPE rows).
+        arguments = (np.frombuffer(buffer, np.uint8), layout.bytes, count, self._extents,
+                     *scene.arguments,
+                     NO_CONTACTS if scene.result is None else scene.result.contacts,
+                     self._writing)
+        if self._kernel is None:
+            self._kernel = compiled_for(_answer_poses, arguments)
+        answered, contacts, counters, same, poses, size, sec, nanosec = self._kernel(*arguments)
         if not answered:
             return None
         self._outcome = scene, contacts, counters, same
@@ -148,6 +154,7 @@ class JointLane:
         self._name_count = 0
         self._rows = self._writer = None  # the pass and writer the lane last answered with
         self._writing = None  # that writer's kernel argument, for that pass
+        self._kernel = None  # _answer_joints compiled for their arguments (_jit)
 
     def learn(self, buffer, message, joints):
         """Take the layout of ``buffer``, merged the full way into ``joints`` (JointValues).
@@ -176,11 +183,12 @@ class JointLane:
             return None
         if rows is not self._rows or writer is not self._writer:  # a bound for that pass
             self._writing = writer.writing(frame_id, rows.all_pairs)
-            self._rows, self._writer = rows, writer
-        entries, indices, values, known = joints.merge_arrays()
-        answered, contacts, passed, sat_tests, size, sec, nanosec = _answer_joints(
-            np.frombuffer(buffer, np.uint8), layout.bytes, self._name_count, entries, indices,
-            values, known, *rows.state_workspace, self._writing)
+            self._rows, self._writer, self._kernel = rows, writer, None
+        arguments = (np.frombuffer(buffer, np.uint8), layout.bytes, self._name_count,
+                     *joints.merge_arrays(), *rows.state_workspace, self._writing)
+        if self._kernel is None:
+            self._kernel = compiled_for(_answer_joints, arguments)
+        answered, contacts, passed, sat_tests, size, sec, nanosec = self._kernel(*arguments)
         if not answered:
             return None
         return contacts, passed, sat_tests, sec, nanosec, self._writing[0][:size].tobytes()
