@@ -25,7 +25,6 @@ import sys
 import threading
 import time
 
-import llvmlite.binding
 import numba
 import numpy as np
 
@@ -223,7 +222,8 @@ def source_stamp(package):
     """Return a digest of what numba checks before it loads a cached kernel, for ``package``.
 
     Each source file's time and size (numba's own test), numba's and Python's versions, and
-    this CPU: an edited or updated package, or another machine, gets another stamp.
+    what numba keys its cached code on besides (the target, this CPU and its features): an
+    edited or updated package, or another machine, gets another stamp.
     """
     digest = hashlib.sha1()
     for path in sorted(pathlib.Path(package).rglob('*.py')):
@@ -231,7 +231,7 @@ def source_stamp(package):
         line = '%s %d %d\n' % (path.relative_to(package), status.st_mtime_ns, status.st_size)
         digest.update(line.encode())
     digest.update(('%s %s %s' % (numba.__version__, sys.version,
-                                 llvmlite.binding.get_host_cpu_name())).encode())
+                                 box_distance.targetctx.codegen().magic_tuple())).encode())
     return digest.hexdigest()[:16]
 
 
