@@ -554,18 +554,7 @@ class CollisionNode(LifecycleNode):
             if self._robot is not None:
                 raise InputError('refused while a robot model is loaded: its boxes are the '
                                  'dynamic bodies (publish joint_states)')
-            with self._world_lock:
-                answer = self._pose_lane.answer(buffer, config, self._world, self._cloud_writer)
-                if answer is not None:  # read, checked and written in one kernel (lanes.py)
-                    cloud, poses, sec, nanosec = answer
-                    stepped = time.perf_counter()
-                    try:
-                        self._collisions_publisher.publish(cloud)  # then what it needs not
-                    finally:  # the World keeps the answer it reuses for the same input
-                        result = self._pose_lane.result(start, stepped)
-            if answer is not None:
-                self._record_tick(start, start, stepped, 0.0, result, sec, nanosec, poses,
-                                  config.dynamic_half_extents)
+            if self._answer_poses_in_lane(buffer, config, start):
                 return
             message = self._pose_lane.read(buffer, config)
             if message is None:  # not of the last layout read: the full way (lanes.py)
@@ -579,6 +568,25 @@ class CollisionNode(LifecycleNode):
             return
         self._publish_tick(start, checked, result, message.sec, message.nanosec, message.poses,
                            config.dynamic_half_extents)
+
+    def _answer_poses_in_lane(self, buffer, config, start):
+        """Answer a PoseArray in the pose lane (lanes.py); False: the full way.
+
+        Read, checked and its cloud written in one kernel; the cloud is published first.
+        """
+        with self._world_lock:
+            answer = self._pose_lane.answer(buffer, config, self._world, self._cloud_writer)
+            if answer is None:
+                return False
+            cloud, poses, sec, nanosec = answer
+            stepped = time.perf_counter()
+            try:
+                self._collisions_publisher.publish(cloud)  # then what the answer needs not
+            finally:  # the World keeps the answer it reuses for the same input
+                result = self._pose_lane.result(start, stepped)
+        self._record_tick(start, start, stepped, 0.0, result, sec, nanosec, poses,
+                          config.dynamic_half_extents)
+        return True
 
     def _publish_tick(self, start, checked, result, sec, nanosec, poses, half_extents,
                       writer=None):
@@ -724,7 +732,7 @@ class CollisionNode(LifecycleNode):
     def _on_joint_states(self, buffer):
         """Take a joint_states message's values; once every joint has one, answer on collisions."""
         start = time.perf_counter()
-        if self._answer_in_lane(buffer, start):
+        if self._answer_joints_in_lane(buffer, start):
             return
         message = self._merge_joint_states(buffer)
         if message is None:
@@ -756,7 +764,7 @@ class CollisionNode(LifecycleNode):
         self._publish_tick(start, checked, result, message.sec, message.nanosec, poses,
                            robot.half_extents, writer)
 
-    def _answer_in_lane(self, buffer, start):
+    def _answer_joints_in_lane(self, buffer, start):
         """Answer a message in the joint_states lane (lanes.py); False: the full way."""
         with self._world_lock:
             world = self._world
