@@ -367,6 +367,35 @@ def test_batches_and_the_base_pose(own):
                                    atol=FK_TOLERANCE)
 
 
+def test_lane_frames_are_the_one_state_frames_bit_for_bit(own):
+    """robot.lane_transforms (the pass's LANES states at once) against link_transforms.
+
+    Both are the package's own kernels: the robot's pass answers as a step on box_poses only
+    if the two agree to the bit, in every lane, in a block cut short by the last state, and
+    in a block whose angle past trig.REDUCED_LIMIT sends its lanes through libm.
+    """
+    from collision_node.pipeline.robot import lane_transforms, link_frames, link_transforms
+    from collision_node.pipeline.robot_pass import LANES
+    robot = own[0]
+    model, links = robot.model, len(robot.model.parents)
+    rng = np.random.default_rng(8)
+    states = random_q(robot, rng, 3 * LANES - 3)
+    spin = robot.joint_names.index('spin')
+    states[LANES + 2, spin] = 3e6  # a continuous joint far round
+    base = np.array([0.5, -1.0, 2.0, 0.1, 0.2, 0.3, 0.9])  # not unit: normalised in both
+    lanes = (np.empty(LANES), np.empty((links, 4, LANES)), np.empty((links, 9, LANES)),
+             np.empty((links, 3, LANES)))
+    one = link_frames(model)
+    for first in range(0, len(states), LANES):
+        width = min(LANES, len(states) - first)
+        lane_transforms(model, base, states, first, width, *lanes)
+        for w in range(width):
+            link_transforms(model, base, states[first + w], *one)
+            np.testing.assert_array_equal(lanes[1][:, :, w], one[2])
+            np.testing.assert_array_equal(lanes[2][:, :, w], one[0].reshape(links, 9))
+            np.testing.assert_array_equal(lanes[3][:, :, w], one[1])
+
+
 def test_mesh_boxes_hold_every_vertex_and_beat_the_aabb(own, ament_prefix):
     robot, links, _, meshes = own[:4]
     elements = [item for collisions in links.values() for item in collisions]

@@ -176,3 +176,37 @@ def test_a_bad_single_state_is_refused_naming_the_joint_or_box(panda):
     world.set_robot(panda, [1e9, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])  # its boxes beyond 1e9 m
     with pytest.raises(ValueError, match=r'state 0: dynamic body \d+: position beyond'):
         world.check_joints(np.zeros(panda.dof))
+
+
+@pytest.mark.parametrize('bad_box_state, bad_joint_state', [(9, 13), (13, 9), (7, 8), (20, 3)])
+def test_a_batch_fails_at_its_first_bad_state_across_and_within_blocks(panda, bad_box_state,
+                                                                       bad_joint_state):
+    """The pass runs robot_pass.LANES states at once: the first bad state still decides.
+
+    One state's finger slid 1e12 m (its boxes beyond 1e9 m), another's joint NaN, in one
+    block of lanes or in two: the pass (World.robot_pass, as the node's joint lane runs it)
+    names whichever comes first. (World.check_joints refuses a NaN anywhere in q before its
+    pass, by the joint's name.) A World with two states placed out of range names the first.
+    """
+    from collision_node.pipeline.robot_pass import LANES, NON_FINITE_JOINT
+    assert LANES == 8  # the states above sit in one block or two for 8 lanes
+    world = World()
+    world.set_static(STATIC_POSES, STATIC_HALF_EXTENTS)
+    world.set_robot(panda)
+    states = random_states(panda, 24, seed=5)
+    finger = panda.joint_names.index('panda_finger_joint1')
+    states[bad_box_state, finger] = 1e12
+    states[bad_joint_state, 2] = np.nan
+    contacts, _, state, box, _, _ = world.robot_pass().check(states, 0, len(states))
+    assert len(contacts) == 0 and state == min(bad_box_state, bad_joint_state)
+    if bad_box_state < bad_joint_state:
+        assert panda.box_links[box] in ('panda_leftfinger', 'panda_rightfinger')
+    else:
+        assert box == NON_FINITE_JOINT
+    states[bad_joint_state, 2] = 0.0
+    states[bad_joint_state, finger] = 1e12
+    with pytest.raises(ValueError, match=r'state %d: dynamic body \d+: position beyond'
+                       % min(bad_box_state, bad_joint_state)):
+        world.check_joints(states)
+    good = random_states(panda, 24, seed=5)
+    assert_as_step(world, panda, good, world.check_joints(good).contacts)

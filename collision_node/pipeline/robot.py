@@ -87,7 +87,8 @@ import numpy as np
 from collision_node.pipeline import meshes, urdf
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.flat_views import view
-from collision_node.pipeline.frames import quaternion_product, rotation_from_quaternion
+from collision_node.pipeline.frames import matrix, quaternion_product, rotation_from_quaternion
+from collision_node.pipeline.trig import REDUCED_LIMIT, reduced_sincos, sincos
 
 # Joint type codes in RobotModel.joint_types (continuous is revolute without limits).
 FIXED = 0
@@ -629,7 +630,7 @@ def link_transforms(model, base_pose, q, rotations, translations, quaternions):
 
     For one state q (module docstring, Composition). The root link's frame is ``base_pose``
     (its quaternion normalised here). No allocation: a batch of states reuses the caller's
-    arrays.
+    arrays. :func:`lane_transforms` computes the same frames, bit for bit, for many states.
 
     Two loops: the joints' own quaternions first, each independent of the others, so that
     their sines and cosines overlap; then the chain, each link after its parent.
@@ -637,68 +638,226 @@ def link_transforms(model, base_pose, q, rotations, translations, quaternions):
     # Entry by entry, never through a view or a name bound to an array in the loops: each
     # costs a reference count, more than the arithmetic here.
     for link in range(model.parents.shape[0]):
-        for i in range(4):
-            quaternions[link, i] = model.origin_quaternions[link, i]
         if model.joint_types[link] == REVOLUTE:
-            half = 0.5 * _joint_value(model, q, link)
-            c, s = math.cos(half), math.sin(half)
-            for i in range(4):
-                quaternions[link, i] = c * quaternions[link, i] \
-                    + s * model.turn_quaternions[link, i]
+            s, c = sincos(0.5 * _joint_value(model, link, q[model.q_indices[link]]))
+            own = _own_quaternion(model, link, s, c)
+        else:
+            own = _origin_quaternion(model, link)
+        quaternions[link, 0], quaternions[link, 1] = own[0], own[1]
+        quaternions[link, 2], quaternions[link, 3] = own[2], own[3]
     for k in range(model.order.shape[0]):
         link = model.order[k]
         parent = model.parents[link]
         if parent == NO_INDEX:
-            x, y, z, w = base_pose[3], base_pose[4], base_pose[5], base_pose[6]
-            norm = math.sqrt(x * x + y * y + z * z + w * w)
-            _write_frame(link, (x / norm, y / norm, z / norm, w / norm),
+            quaternion = _unit(base_pose)
+            _write_frame(link, quaternion, rotation_from_quaternion(*quaternion),
                          (base_pose[0], base_pose[1], base_pose[2]), rotations, translations,
                          quaternions)
             continue
-        # The origin's translation, in the parent's frame.
-        shift = _moved(rotations, translations, parent, (model.origin_translations[link, 0],
-                                                         model.origin_translations[link, 1],
-                                                         model.origin_translations[link, 2]))
-        turn = quaternion_product((quaternions[parent, 0], quaternions[parent, 1],
-                                   quaternions[parent, 2], quaternions[parent, 3]),
-                                  (quaternions[link, 0], quaternions[link, 1],
-                                   quaternions[link, 2], quaternions[link, 3]))
-        _write_frame(link, turn, shift, rotations, translations, quaternions)
-        if model.joint_types[link] == PRISMATIC:  # a slide along the axis, in the link's frame
-            value = _joint_value(model, q, link)
-            for i in range(3):
-                translations[link, i] += value * (rotations[link, i, 0] * model.axes[link, 0]
-                                                  + rotations[link, i, 1] * model.axes[link, 1]
-                                                  + rotations[link, i, 2] * model.axes[link, 2])
+        quaternion, rotation, translation = _chained(
+            (quaternions[parent, 0], quaternions[parent, 1], quaternions[parent, 2],
+             quaternions[parent, 3]), matrix(rotations, parent),
+            (translations[parent, 0], translations[parent, 1], translations[parent, 2]),
+            (quaternions[link, 0], quaternions[link, 1], quaternions[link, 2],
+             quaternions[link, 3]), _origin_translation(model, link))
+        _write_frame(link, quaternion, rotation, translation, rotations, translations,
+                     quaternions)
+        if model.joint_types[link] == PRISMATIC:
+            value = _joint_value(model, link, q[model.q_indices[link]])
+            slide = _slide(model, link, rotation, value)
+            translations[link, 0] += slide[0]
+            translations[link, 1] += slide[1]
+            translations[link, 2] += slide[2]
 
 
 @inlined_kernel
-def _joint_value(model, q, link):
-    """Return the value of a moving link's joint: multiplier * q[its index] + offset."""
-    return model.multipliers[link] * q[model.q_indices[link]] + model.offsets[link]
+def lane_transforms(model, base_pose, states, first, lanes, halves, quaternions, rotations,
+                    translations):
+    """Write the link frames of states ``[first, first + lanes)`` of ``states`` (K, dof).
+
+    :func:`link_transforms`' frames, bit for bit (the same helpers, in the same order), laid
+    out with the state last: ``quaternions`` (L, 4, LANES), ``rotations`` (L, 9, LANES)
+    (row-major), ``translations`` (L, 3, LANES), lane w the state first + w; ``halves``
+    (LANES,) scratch. The state innermost lets LLVM run the lanes at once (a loop over a
+    robot's joints cannot: each link waits for its parent), and one test of the lanes' angles
+    lets their sines and cosines vectorize too (trig.py).
+    """
+    for link in range(model.parents.shape[0]):
+        if model.joint_types[link] == REVOLUTE:
+            reducible = True
+            for w in range(lanes):
+                entry = states[first + w, model.q_indices[link]]
+                halves[w] = 0.5 * _joint_value(model, link, entry)
+                reducible &= abs(halves[w]) <= REDUCED_LIMIT
+            if reducible:  # a loop without a call: vectorized
+                for w in range(lanes):
+                    s, c = reduced_sincos(halves[w])
+                    _write_quaternion(link, w, _own_quaternion(model, link, s, c), quaternions)
+            else:
+                for w in range(lanes):
+                    s, c = sincos(halves[w])
+                    _write_quaternion(link, w, _own_quaternion(model, link, s, c), quaternions)
+        else:
+            own = _origin_quaternion(model, link)
+            for w in range(lanes):
+                _write_quaternion(link, w, own, quaternions)
+    for k in range(model.order.shape[0]):
+        link = model.order[k]
+        parent = model.parents[link]
+        if parent == NO_INDEX:
+            quaternion = _unit(base_pose)
+            rotation = rotation_from_quaternion(*quaternion)
+            for w in range(lanes):
+                _write_lane(link, w, quaternion, rotation,
+                            (base_pose[0], base_pose[1], base_pose[2]), quaternions, rotations,
+                            translations)
+            continue
+        origin = _origin_translation(model, link)
+        for w in range(lanes):
+            quaternion, rotation, translation = _chained(
+                lane_quaternion(quaternions, parent, w), lane_rotation(rotations, parent, w),
+                lane_vector(translations, parent, w), lane_quaternion(quaternions, link, w),
+                origin)
+            _write_lane(link, w, quaternion, rotation, translation, quaternions, rotations,
+                        translations)
+        if model.joint_types[link] == PRISMATIC:
+            for w in range(lanes):
+                value = _joint_value(model, link, states[first + w, model.q_indices[link]])
+                slide = _slide(model, link, lane_rotation(rotations, link, w), value)
+                translations[link, 0, w] += slide[0]
+                translations[link, 1, w] += slide[1]
+                translations[link, 2, w] += slide[2]
+
+
+@inlined_kernel
+def _joint_value(model, link, entry):
+    """Return the value of a moving link's joint: multiplier * ``entry`` (q's) + offset."""
+    return model.multipliers[link] * entry + model.offsets[link]
+
+
+@inlined_kernel
+def _origin_quaternion(model, link):
+    """Return the quaternion of a link's joint origin (x, y, z, w)."""
+    o = model.origin_quaternions
+    return o[link, 0], o[link, 1], o[link, 2], o[link, 3]
+
+
+@inlined_kernel
+def _origin_translation(model, link):
+    """Return the translation of a link's joint origin, in its parent's frame."""
+    o = model.origin_translations
+    return o[link, 0], o[link, 1], o[link, 2]
+
+
+@inlined_kernel
+def _own_quaternion(model, link, s, c):
+    """Return a turning joint's quaternion: its origin's turned by the angle of sine s, cosine c.
+
+    ``s``, ``c``: the sine and cosine of half the joint's value (module docstring,
+    Composition).
+    """
+    o, t = model.origin_quaternions, model.turn_quaternions
+    return (c * o[link, 0] + s * t[link, 0], c * o[link, 1] + s * t[link, 1],
+            c * o[link, 2] + s * t[link, 2], c * o[link, 3] + s * t[link, 3])
+
+
+@inlined_kernel
+def _unit(base_pose):
+    """Return the base pose's quaternion normalised."""
+    x, y, z, w = base_pose[3], base_pose[4], base_pose[5], base_pose[6]
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    return x / norm, y / norm, z / norm, w / norm
+
+
+@inlined_kernel
+def _chained(parent_quaternion, parent_rotation, parent_translation, own, origin):
+    """Return a link's (quaternion, rotation, translation) before any slide of its joint.
+
+    From its parent's frame (quaternion, row-major 9-tuple rotation, translation), its
+    joint's own quaternion and its origin's translation in the parent's frame.
+    """
+    quaternion = quaternion_product(parent_quaternion, own)
+    return (quaternion, rotation_from_quaternion(*quaternion),
+            placed(parent_rotation, parent_translation, origin))
+
+
+@inlined_kernel
+def _slide(model, link, rotation, value):
+    """Return a sliding joint's move by ``value`` along its axis, in the link's frame."""
+    a = model.axes
+    return (value * (rotation[0] * a[link, 0] + rotation[1] * a[link, 1]
+                     + rotation[2] * a[link, 2]),
+            value * (rotation[3] * a[link, 0] + rotation[4] * a[link, 1]
+                     + rotation[5] * a[link, 2]),
+            value * (rotation[6] * a[link, 0] + rotation[7] * a[link, 1]
+                     + rotation[8] * a[link, 2]))
+
+
+@inlined_kernel
+def placed(r, t, p):
+    """Return the point ``p`` of a frame (rotation ``r`` row-major, origin ``t``) outside it."""
+    return (t[0] + r[0] * p[0] + r[1] * p[1] + r[2] * p[2],
+            t[1] + r[3] * p[0] + r[4] * p[1] + r[5] * p[2],
+            t[2] + r[6] * p[0] + r[7] * p[1] + r[8] * p[2])
 
 
 @inlined_kernel
 def _moved(rotations, translations, link, t):
     """Return the point ``t`` (3-tuple) of link ``link``'s frame in the root's frame."""
-    return (translations[link, 0] + rotations[link, 0, 0] * t[0]
-            + rotations[link, 0, 1] * t[1] + rotations[link, 0, 2] * t[2],
-            translations[link, 1] + rotations[link, 1, 0] * t[0]
-            + rotations[link, 1, 1] * t[1] + rotations[link, 1, 2] * t[2],
-            translations[link, 2] + rotations[link, 2, 0] * t[0]
-            + rotations[link, 2, 1] * t[1] + rotations[link, 2, 2] * t[2])
+    return placed(matrix(rotations, link),
+                  (translations[link, 0], translations[link, 1], translations[link, 2]), t)
 
 
 @inlined_kernel
-def _write_frame(link, quaternion, translation, rotations, translations, quaternions):
-    """Write a link's frame: its quaternion, the rotation matrix of it and its translation."""
-    r = rotation_from_quaternion(*quaternion)
+def _write_frame(link, quaternion, r, translation, rotations, translations, quaternions):
+    """Write a link's frame: its quaternion, its rotation matrix (row-major) and translation."""
     rotations[link, 0, 0], rotations[link, 0, 1], rotations[link, 0, 2] = r[0], r[1], r[2]
     rotations[link, 1, 0], rotations[link, 1, 1], rotations[link, 1, 2] = r[3], r[4], r[5]
     rotations[link, 2, 0], rotations[link, 2, 1], rotations[link, 2, 2] = r[6], r[7], r[8]
     translations[link, 0], translations[link, 1], translations[link, 2] = translation
     quaternions[link, 0], quaternions[link, 1] = quaternion[0], quaternion[1]
     quaternions[link, 2], quaternions[link, 3] = quaternion[2], quaternion[3]
+
+
+@inlined_kernel
+def _write_lane(link, w, quaternion, rotation, translation, quaternions, rotations,
+                translations):
+    """Write a link's frame for lane ``w`` (lane_transforms' layout)."""
+    _write_quaternion(link, w, quaternion, quaternions)
+    r = rotation
+    rotations[link, 0, w], rotations[link, 1, w], rotations[link, 2, w] = r[0], r[1], r[2]
+    rotations[link, 3, w], rotations[link, 4, w], rotations[link, 5, w] = r[3], r[4], r[5]
+    rotations[link, 6, w], rotations[link, 7, w], rotations[link, 8, w] = r[6], r[7], r[8]
+    translations[link, 0, w], translations[link, 1, w] = translation[0], translation[1]
+    translations[link, 2, w] = translation[2]
+
+
+@inlined_kernel
+def _write_quaternion(link, w, quaternion, quaternions):
+    """Write a link's quaternion for lane ``w`` (lane_transforms' layout)."""
+    quaternions[link, 0, w], quaternions[link, 1, w] = quaternion[0], quaternion[1]
+    quaternions[link, 2, w], quaternions[link, 3, w] = quaternion[2], quaternion[3]
+
+
+@inlined_kernel
+def lane_quaternion(quaternions, link, w):
+    """Return a link's quaternion in lane ``w`` (lane_transforms' layout)."""
+    return (quaternions[link, 0, w], quaternions[link, 1, w], quaternions[link, 2, w],
+            quaternions[link, 3, w])
+
+
+@inlined_kernel
+def lane_rotation(rotations, link, w):
+    """Return a link's rotation (row-major 9-tuple) in lane ``w`` (lane_transforms' layout)."""
+    return (rotations[link, 0, w], rotations[link, 1, w], rotations[link, 2, w],
+            rotations[link, 3, w], rotations[link, 4, w], rotations[link, 5, w],
+            rotations[link, 6, w], rotations[link, 7, w], rotations[link, 8, w])
+
+
+@inlined_kernel
+def lane_vector(vectors, row, w):
+    """Return row ``row``'s 3-vector in lane ``w`` (lane_transforms' layout)."""
+    return vectors[row, 0, w], vectors[row, 1, w], vectors[row, 2, w]
 
 
 @kernel
