@@ -906,19 +906,17 @@ def box_quaternion(model, quaternions, b):
 @inlined_kernel
 def box_rotation(model, rotations, b):
     """Return box b's rotation (row-major 9-tuple) from the link frames (as box_center)."""
-    link = model.box_links[b]
-    m = model.box_rotations
-    r00, r01, r02 = rotations[link, 0, 0], rotations[link, 0, 1], rotations[link, 0, 2]
-    r10, r11, r12 = rotations[link, 1, 0], rotations[link, 1, 1], rotations[link, 1, 2]
-    r20, r21, r22 = rotations[link, 2, 0], rotations[link, 2, 1], rotations[link, 2, 2]
-    m00, m01, m02 = m[b, 0, 0], m[b, 0, 1], m[b, 0, 2]
-    m10, m11, m12 = m[b, 1, 0], m[b, 1, 1], m[b, 1, 2]
-    m20, m21, m22 = m[b, 2, 0], m[b, 2, 1], m[b, 2, 2]
-    return (r00 * m00 + r01 * m10 + r02 * m20, r00 * m01 + r01 * m11 + r02 * m21,
-            r00 * m02 + r01 * m12 + r02 * m22, r10 * m00 + r11 * m10 + r12 * m20,
-            r10 * m01 + r11 * m11 + r12 * m21, r10 * m02 + r11 * m12 + r12 * m22,
-            r20 * m00 + r21 * m10 + r22 * m20, r20 * m01 + r21 * m11 + r22 * m21,
-            r20 * m02 + r21 * m12 + r22 * m22)
+    return turned(matrix(rotations, model.box_links[b]), matrix(model.box_rotations, b))
+
+
+@inlined_kernel
+def turned(r, m):
+    """Return the rotation r m (row-major 9-tuples): m's axes turned by r."""
+    return (r[0] * m[0] + r[1] * m[3] + r[2] * m[6], r[0] * m[1] + r[1] * m[4] + r[2] * m[7],
+            r[0] * m[2] + r[1] * m[5] + r[2] * m[8], r[3] * m[0] + r[4] * m[3] + r[5] * m[6],
+            r[3] * m[1] + r[4] * m[4] + r[5] * m[7], r[3] * m[2] + r[4] * m[5] + r[5] * m[8],
+            r[6] * m[0] + r[7] * m[3] + r[8] * m[6], r[6] * m[1] + r[7] * m[4] + r[8] * m[7],
+            r[6] * m[2] + r[7] * m[5] + r[8] * m[8])
 
 
 @kernel

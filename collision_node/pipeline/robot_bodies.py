@@ -43,6 +43,7 @@ import numpy as np
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE
 from collision_node.pipeline.distance import box_distance
+from collision_node.pipeline.flat_views import copy_into
 from collision_node.pipeline.frames import (dot, matrix, projection_gap, relative_pose,
                                             squared_distance_outside, sum_abs,
                                             transposed_times)
@@ -136,7 +137,7 @@ def segment_contacts(world, bodies, waypoints, exact, found, keys):
 
 
 @kernel
-def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frames, pairs,
+def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept, pairs,
                            pair_radii, margins, boxes, chord_turns, chord_reach, resolution):
     """Return, per segment and pair, where the first configuration not proven free lies.
 
@@ -144,8 +145,8 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
     copies: ``boxes`` is not written), the static boxes after them. ``pairs``
     (P, 2) rows of ``boxes``, the first one a robot box, ``pair_radii`` (P, dof) their
     Robot.pair_motion_radii, ``margins`` (P,) the distance within which each pair counts
-    (robot_pass.RobotRows holds all four). ``frames`` the waypoints' link frames
-    (rotations (W, L, 3, 3), translations (W, L, 3)) as the waypoints' check kept them
+    (robot_pass.RobotRows holds all four). ``kept`` the waypoints' robot boxes (centres
+    (W, B, 3), rotations (W, B, 3, 3)) as the waypoints' check kept them
     (robot_pass.check_robot_states), or none (empty): then they are computed here.
     ``chord_turns`` (B, dof) and ``chord_reach`` (B,): Robot's, the Chord bound. Returns
     (W - 1, P): s in [0, 1) where the pair comes within ``resolution`` of its margin, or -1
@@ -161,7 +162,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
     end = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     at = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     first = np.int64(0)  # not a literal constant: _jit, "Constant arguments"
-    _place_waypoint(model, base_pose, waypoints, frames, first, scratch, start)
+    _place_waypoint(model, base_pose, waypoints, kept, first, scratch, start)
     radii = np.sqrt(np.sum(start[2] * start[2], axis=1))  # half diagonals: the boxes' spheres
     start_placed = True
     # A lower bound on each pair's distance at the segment's start: what a test there or at
@@ -206,7 +207,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
                 bound = credit[p]
             else:
                 if not start_placed:
-                    _place_waypoint(model, base_pose, waypoints, frames, k, scratch, start)
+                    _place_waypoint(model, base_pose, waypoints, kept, k, scratch, start)
                     start_placed = True
                 enough = margins[p] + max(motion, resolution)
                 bound = _sphere_gap(start[0], radii, a, b)
@@ -224,7 +225,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
                 continue
             cleared[p] = free / motion * SHRINK
             if not end_placed:
-                _place_waypoint(model, base_pose, waypoints, frames, k + 1, scratch, end)
+                _place_waypoint(model, base_pose, waypoints, kept, k + 1, scratch, end)
                 end_placed = True
             enough = margins[p] + motion * (1.0 - cleared[p])
             bound = _sphere_gap(end[0], radii, a, b)
@@ -254,7 +255,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, frame
                     turned += abs(waypoints[k + 1, j] - waypoints[k, j]) * chord_turns[box, j]
                 bends[box] = chord_reach[box] * turned * turned * CHORD_SAFETY
             if not start_placed:
-                _place_waypoint(model, base_pose, waypoints, frames, k, scratch, start)
+                _place_waypoint(model, base_pose, waypoints, kept, k, scratch, start)
                 start_placed = True
         s0, near, step = 0.0, start, 1.0
         while waiting:
@@ -373,10 +374,14 @@ def _seen_from_a(boxes, a, b):
 
 
 @kernel
-def _place_waypoint(model, base_pose, waypoints, frames, k, scratch, boxes):
-    """Write the robot's boxes at waypoint k into rows 0..B-1 of boxes, from its kept frames."""
-    if len(frames[0]):
-        _write_robot_boxes(model, frames[0][k], frames[1][k], boxes)
+def _place_waypoint(model, base_pose, waypoints, kept, k, scratch, boxes):
+    """Write the robot's boxes at waypoint k into rows 0..B-1 of boxes, from its kept boxes."""
+    if len(kept[0]):
+        centers, rotations, extents = boxes
+        count = model.half_extents.shape[0]
+        copy_into(centers[:count], kept[0][k])
+        copy_into(rotations[:count], kept[1][k])
+        copy_into(extents[:count], model.half_extents)
     else:
         _place(model, base_pose, waypoints[k], waypoints[k], 0.0, scratch, boxes)
 

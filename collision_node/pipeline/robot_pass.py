@@ -50,7 +50,7 @@ from collision_node.pipeline.frames import matrix, quaternion_product, squared_d
 from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORDINATE,
                                          NON_FINITE_POSE, OUT_OF_RANGE, TIE_ULPS, VALID)
 from collision_node.pipeline.robot import (lane_quaternion, lane_rotation, lane_transforms,
-                                           lane_vector, NO_INDEX, packed_sizes, placed,
+                                           lane_vector, NO_INDEX, packed_sizes, placed, turned,
                                            unpack_model)
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
@@ -75,8 +75,8 @@ LANES = 8
 # A lane's failure before its SAT: its q holds a NaN or Inf; a box centre is not finite or
 # beyond MAX_COORDINATE.
 BAD_JOINT, BAD_CENTER = 1, 2
-# check_robot_states' frames when they are not kept.
-NO_FRAMES = (np.empty((0, 0, 3, 3)), np.empty((0, 0, 3)))
+# check_robot_states' boxes when they are not kept.
+NOT_KEPT = (np.empty((0, 0, 3)), np.empty((0, 0, 3, 3)))
 
 
 class RobotRows:
@@ -162,17 +162,17 @@ class RobotRows:
         """Return check_robot_state's arguments after ``q``: for a kernel that calls it."""
         return self._workspaces[0]
 
-    def check(self, states, first_state, stop_state, frames=None, chunk=0):
+    def check(self, states, first_state, stop_state, kept=None, chunk=0):
         """Return check_robot_states' answer for states ``[first_state, stop_state)``.
 
-        ``frames`` (link rotations (K, L, 3, 3), translations (K, L, 3)): where to keep each
-        state's link frames (a trajectory's segments start from them); None: not kept.
+        ``kept`` (box centres (K, B, 3), rotations (K, B, 3, 3)): where to keep each state's
+        robot boxes (a trajectory's segments start from them); None: not kept.
         ``chunk``: the workspace to use (:meth:`reserve`), one per chunk checked at once.
         """
         floats, ints = self._workspaces[chunk]
-        frame_rotations, frame_translations = NO_FRAMES if frames is None else frames
-        return check_robot_states(states, floats, ints, first_state, stop_state,
-                                  frame_rotations, frame_translations)
+        kept_centers, kept_rotations = NOT_KEPT if kept is None else kept
+        return check_robot_states(states, floats, ints, first_state, stop_state, kept_centers,
+                                  kept_rotations)
 
 
 def _may_come_near(bodies, a, rows, table, pad):
@@ -213,13 +213,14 @@ def _slack(scale):
 
 
 @kernel
-def check_robot_states(states, floats, ints, first_state, stop_state, frame_rotations,
-                       frame_translations):
+def check_robot_states(states, floats, ints, first_state, stop_state, kept_centers,
+                       kept_rotations):
     """Check joint states ``[first_state, stop_state)`` of ``states`` (K, dof) (module docstring).
 
     ``floats`` and ``ints`` a workspace of :func:`_workspace` (the model, the pairs and
-    settings, the rows and scratch); each state's link frames are written to
-    ``frame_rotations`` and ``frame_translations`` (RobotRows.check) unless they are empty. Returns
+    settings, the rows and scratch); each state's robot boxes are written to ``kept_centers``
+    and ``kept_rotations`` (RobotRows.check) unless they are empty, each rotation straight from
+    its link's (robot.box_rotation), not through the quaternion a pose holds. Returns
     (contacts with their state, (pairs the culls passed, SAT tests), first failed state
     or -1, its box (NON_FINITE_JOINT: its q), obb reason code, 1 if the SAT met NaN).
 
@@ -229,14 +230,15 @@ def check_robot_states(states, floats, ints, first_state, stop_state, frame_rota
     """
     links, count = ints[0], ints[1]
     lanes = (np.zeros(LANES), np.zeros((links, 4, LANES)), np.zeros((links, 9, LANES)),
-             np.zeros((links, 3, LANES)), np.zeros((count, 3, LANES)), np.zeros(LANES))
-    return _checked(states, floats, ints, first_state, stop_state, frame_rotations,
-                    frame_translations, LANES, lanes)
+             np.zeros((links, 3, LANES)), np.zeros((count, 3, LANES)), np.zeros(LANES),
+             np.zeros((count, 9, LANES)))
+    return _checked(states, floats, ints, first_state, stop_state, kept_centers,
+                    kept_rotations, LANES, lanes)
 
 
 @kernel
 def check_robot_state(q, floats, ints):
-    """Return :func:`check_robot_states`' answer for one state ``q`` (dof,), frames not kept.
+    """Return :func:`check_robot_states`' answer for one state ``q`` (dof,), boxes not kept.
 
     Entered with three arguments, not seven: numba unboxes each argument on every call, and
     for one state that is a tenth of the call. It runs one lane, in the workspace's scratch:
@@ -244,12 +246,12 @@ def check_robot_state(q, floats, ints):
     constants: _jit, "Constant arguments".)
     """
     return _checked(view(q, 0, (1, q.shape[0])), floats, ints, np.int64(0), np.int64(1),
-                    np.empty((0, 0, 3, 3)), np.empty((0, 0, 3)), 1, _views(floats, ints)[-2])
+                    np.empty((0, 0, 3)), np.empty((0, 0, 3, 3)), 1, _views(floats, ints)[-2])
 
 
 @inlined_kernel
-def _checked(states, floats, ints, first_state, stop_state, frame_rotations, frame_translations,
-             lanes, lane_floats):
+def _checked(states, floats, ints, first_state, stop_state, kept_centers, kept_rotations, lanes,
+             lane_floats):
     """:func:`check_robot_states`, run ``lanes`` lanes at a time in ``lane_floats``.
 
     ``lanes`` states at a time: their forward kinematics, centres and culls with the state
@@ -257,14 +259,15 @@ def _checked(states, floats, ints, first_state, stop_state, frame_rotations, fra
     where a state checked alone would: its q, then its boxes' centres, then its SAT, and a
     state's failure returns before any later state's SAT runs. ``lane_floats``: (half angles
     (LANES,), the link frames (quaternions, rotations, translations), the box centres
-    (B, 3, LANES), the rounding allowances (LANES,)).
+    (B, 3, LANES), the rounding allowances (LANES,), the box rotations kept (B, 9, LANES)).
     """
     model = unpack_model(ints, floats)
     count = model.half_extents.shape[0]
     (base_pose, settings, bounds, pairs, keys, centers, rotations, extents, aabbs, radii,
      margins, depth, normal, point, oriented, candidates, _, (listed, listed_counts, failures)) \
         = _views(floats, ints)
-    halves, lane_quaternions, lane_rotations, lane_translations, lane_centers, ties = lane_floats
+    (halves, lane_quaternions, lane_rotations, lane_translations, lane_centers, ties,
+     lane_box_rotations) = lane_floats
     oriented[:] = -1  # the state each box was last oriented for
     most = len(pairs)
     status = np.empty(most, np.int8)
@@ -284,6 +287,8 @@ def _checked(states, floats, ints, first_state, stop_state, frame_rotations, fra
                         lane_quaternions, lane_rotations, lane_translations)
         _place_lanes(model, width, lane_rotations, lane_translations, lane_centers, ties,
                      failures, bounds)
+        if len(kept_centers):
+            _turn_lanes(model, width, lane_rotations, lane_box_rotations)
         _cull_lanes(count, lanes, width, pairs, centers, rotations, extents, aabbs, radii,
                     margins, settings[PAD], lane_centers, ties, listed, listed_counts)
         for w in range(width):
@@ -293,9 +298,9 @@ def _checked(states, floats, ints, first_state, stop_state, frame_rotations, fra
             if failures[w] == BAD_CENTER:
                 box, code = _bad_center(count, lane_centers, w)
                 return _failed(state, box, code, 0)
-            if len(frame_rotations):
-                _keep_frames(w, lane_rotations, lane_translations, frame_rotations[state],
-                             frame_translations[state])
+            if len(kept_centers):
+                _keep_boxes(w, lane_centers, lane_box_rotations, kept_centers[state],
+                            kept_rotations[state])
             n = 0
             for i in range(listed_counts[w]):
                 p = listed[w, i]
@@ -435,13 +440,24 @@ def _bad_center(count, lane_centers, w):
 
 
 @inlined_kernel
-def _keep_frames(w, lane_rotations, lane_translations, rotations, translations):
-    """Copy lane ``w``'s link frames to one state's (rotations (L, 3, 3), translations (L, 3))."""
-    for link in range(rotations.shape[0]):
+def _turn_lanes(model, width, lane_rotations, lane_box_rotations):
+    """Write every robot box's rotation in every lane, straight from its link's (box_rotation)."""
+    for b in range(model.box_links.shape[0]):
+        link, own = model.box_links[b], matrix(model.box_rotations, b)
+        for w in range(width):
+            r = turned(lane_rotation(lane_rotations, link, w), own)
+            for i in range(9):
+                lane_box_rotations[b, i, w] = r[i]
+
+
+@inlined_kernel
+def _keep_boxes(w, lane_centers, lane_box_rotations, centers, rotations):
+    """Copy lane ``w``'s box centres and rotations to one state's (B, 3) and (B, 3, 3)."""
+    for b in range(centers.shape[0]):
         for i in range(3):
+            centers[b, i] = lane_centers[b, i, w]
             for j in range(3):
-                rotations[link, i, j] = lane_rotations[link, 3 * i + j, w]
-            translations[link, i] = lane_translations[link, i, w]
+                rotations[b, i, j] = lane_box_rotations[b, 3 * i + j, w]
 
 
 @kernel
@@ -468,7 +484,7 @@ def _workspace(model_ints, model_floats, base_pose, pairs, keys, settings, stati
     rows = count + n_static
     model_int_count, model_float_count = packed_sizes(model_ints)
     floats = np.zeros(model_float_count + ROWS + rows * ROW_FLOATS + most * 7
-                      + LANES * (2 + links * 16 + count * 3))
+                      + LANES * (2 + links * 16 + count * 12))
     ints = np.zeros(model_int_count + 2 + most * 5 + count + most * 3 + LANES * (most + 2),
                     np.int64)
     copy_into(floats[:model_float_count], model_floats)
@@ -513,8 +529,9 @@ def _views(floats, ints):
     their keys; (centers, rotations, extents, aabbs, radii, margins) of every row, the SAT's
     (depth, normal, point) per candidate, the state each robot box was last oriented for and
     the candidates (their rows, their pair); then the lanes' scratch (check_robot_states):
-    the half angles, the link frames (robot.lane_transforms), the box centres and rounding
-    allowances, the pairs each lane's culls pass and their count, and each lane's failure.
+    the half angles, the link frames (robot.lane_transforms), the box centres, rounding
+    allowances and rotations (when kept), the pairs each lane's culls pass and their count,
+    and each lane's failure.
     """
     at_int, at = packed_sizes(ints)
     count, links = ints[1], ints[0]
@@ -556,6 +573,7 @@ def _views(floats, ints):
     lane_translations = view(floats, at, (links, 3, LANES))
     at += links * 3 * LANES
     lane_centers = view(floats, at, (count, 3, LANES))
+    lane_box_rotations = view(floats, at + count * 3 * LANES, (count, 9, LANES))
     at_int += count + most * 3
     listed = view(ints, at_int, (LANES, most))
     at_int += LANES * most
@@ -563,7 +581,8 @@ def _views(floats, ints):
     failures = view(ints, at_int + LANES, (LANES,))
     return (base_pose, settings, bounds, pairs, keys, centers, rotations, extents, aabbs,
             radii, margins, depth, normal, point, oriented, candidates,
-            (halves, lane_quaternions, lane_rotations, lane_translations, lane_centers, ties),
+            (halves, lane_quaternions, lane_rotations, lane_translations, lane_centers, ties,
+             lane_box_rotations),
             (listed, listed_counts, failures))
 
 

@@ -38,11 +38,11 @@ class RobotPath:
         """Take ``bodies`` (robot_bodies.RobotBodies) as the robot; the World set its filter."""
         self.bodies = bodies
 
-    def check_joints(self, q, one_pass_pairs, frames=None):
+    def check_joints(self, q, one_pass_pairs, kept=None):
         """Check the robot at joint values ``q`` as World.check_joints does.
 
-        ``frames``: where the robot's pass keeps each state's link frames
-        (robot_pass.RobotRows.check); left unwritten when the scene is too large for it.
+        ``kept``: where the robot's pass keeps each state's robot boxes (centres, rotations:
+        robot_pass.RobotRows.check); left unwritten when the scene is too large for it.
         """
         start = time.perf_counter()
         rows = self._rows
@@ -53,7 +53,7 @@ class RobotPath:
         # needs: for a robot's few boxes, the Python around the pass costs as much as the pass.
         # A state that fails is checked again the full way below, which says why.
         if type(q) is np.ndarray and q.shape == rows.one_state and q.dtype is FLOAT64 \
-                and q.flags.carray and small and frames is None:
+                and q.flags.carray and small and kept is None:
             result = rows.check_one(q, start)
             if result is not None:
                 return result
@@ -62,12 +62,12 @@ class RobotPath:
             return self._batches.check(rows.bodies.poses(states), rows.bodies.robot.half_extents,
                                        one_pass_pairs)
         if len(states) == 1:
-            parts = [rows.check(states, 0, 1, frames)]
+            parts = [rows.check(states, 0, 1, kept)]
         else:
             workers = self._scene.workers
             rows.reserve(workers.max_chunks)
             parts = workers.map_ranges(
-                lambda chunk, first, stop: rows.check(states, first, stop, frames, chunk),
+                lambda chunk, first, stop: rows.check(states, first, stop, kept, chunk),
                 len(states), MIN_STATES_PER_CHUNK)
         passed = sat_tests = 0
         for _, (part_passed, part_sat_tests), state, box, code, invalid in parts:
@@ -100,16 +100,16 @@ class RobotPath:
         bodies = self._robot_bodies()
         waypoints = bodies.robot._states(waypoints)
         rows = self._robot_rows(bodies)
-        # The waypoints' link frames, kept by their exact check for the segments' ends: their
+        # The waypoints' robot boxes, kept by their exact check for the segments' ends: their
         # forward kinematics runs once. Not kept (left empty) beyond the robot's pass.
-        links = len(bodies.robot.link_names)
+        boxes = bodies.count
         small = rows.all_pairs <= one_pass_pairs
-        frames = (np.empty((len(waypoints) if small else 0, links, 3, 3)),
-                  np.empty((len(waypoints) if small else 0, links, 3)))
-        exact = self.check_joints(waypoints, one_pass_pairs, frames).contacts
+        kept = (np.empty((len(waypoints) if small else 0, boxes, 3)),
+                np.empty((len(waypoints) if small else 0, boxes, 3, 3)))
+        exact = self.check_joints(waypoints, one_pass_pairs, kept).contacts
         if len(waypoints) < 2:
             return Result(exact, {})
-        found = first_uncleared_pieces(*bodies.packed_model, bodies.base_pose, waypoints, frames,
+        found = first_uncleared_pieces(*bodies.packed_model, bodies.base_pose, waypoints, kept,
                                        rows.pairs, rows.motion_radii, rows.margins, rows.boxes,
                                        bodies.robot.chord_turns, bodies.robot.chord_reach,
                                        max(resolution, 1e-12))
