@@ -135,8 +135,12 @@ def arm_states(count, offset=0.0):
 
 
 def rotation(quaternion):
-    """Return the rotation matrix of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = quaternion
+    """Return the rotation matrix of a quaternion (x, y, z, w), normalised as a World does.
+
+    A pose written to 7 digits (the scenes' turned boxes) is 1e-8 off unit length: its raw
+    matrix would be as far off orthonormal, and the peers would test other boxes than ours.
+    """
+    x, y, z, w = np.asarray(quaternion, np.float64) / np.linalg.norm(quaternion)
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],

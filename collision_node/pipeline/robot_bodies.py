@@ -15,9 +15,10 @@ configuration where the pair is ``clearance`` farther apart than its margin prov
 free on every configuration within clearance / motion of it on the segment.
 
 The proof is conservative advancement, with a second bound for the pairs that pass near. The
-waypoints at both ends are placed once (each is the end of one segment and the start of the
-next); a pair whose clearance at the start covers the whole segment, or whose clearances at
-the two ends meet, is free. For the pairs left, a piece of the segment from s0 (where all of
+waypoints' exact check keeps their boxes and each pair's sphere gap (robot_pass, as vectors
+over the waypoints), and a segment's ends are placed (copied from what was kept) only for a
+pair whose gap there is not enough; a pair whose clearance at the start covers the whole
+segment, or whose clearances at the two ends meet, is free. For the pairs left, a piece of the segment from s0 (where all of
 them are proven so far) to s is proven at once when, for each pair, one fixed plane keeps its
 two boxes farther apart than its margin plus the boxes' bends at both s0 and s: each point of
 a box strays from the chord between its two places by at most its bend, h² / 8 times a bound
@@ -146,8 +147,9 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
     (P, 2) rows of ``boxes``, the first one a robot box, ``pair_radii`` (P, dof) their
     Robot.pair_motion_radii, ``margins`` (P,) the distance within which each pair counts
     (robot_pass.RobotRows holds all four). ``kept`` the waypoints' robot boxes (centres
-    (W, B, 3), rotations (W, B, 3, 3)) as the waypoints' check kept them
-    (robot_pass.check_robot_states), or none (empty): then they are computed here.
+    (B, 3, W), rotations (B, 9, W) row-major) and each pair's :func:`sphere_gap` there
+    (P, W), as the waypoints' check kept them (robot_pass.check_robot_states), or none
+    (empty): then they are computed here.
     ``chord_turns`` (B, dof) and ``chord_reach`` (B,): Robot's, the Chord bound. Returns
     (W - 1, P): s in [0, 1) where the pair comes within ``resolution`` of its margin, or -1
     (the whole segment is proven free). The model as robot.pack_model packs it.
@@ -161,10 +163,18 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
     start = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())  # ``boxes`` stays unwritten
     end = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
     at = (boxes[0].copy(), boxes[1].copy(), boxes[2].copy())
-    first = np.int64(0)  # not a literal constant: _jit, "Constant arguments"
-    _place_waypoint(model, base_pose, waypoints, kept, first, scratch, start)
-    radii = np.sqrt(np.sum(start[2] * start[2], axis=1))  # half diagonals: the boxes' spheres
-    start_placed = True
+    count = model.half_extents.shape[0]
+    for placed in (start, end, at):  # the robot's extents, which no placement changes
+        copy_into(placed[2][:count], model.half_extents)
+    radii = np.empty(len(start[2]))  # half diagonals: the boxes' spheres
+    for row in range(len(radii)):
+        radii[row] = half_diagonal(start[2], row)
+    if kept[0].shape[2] == 0:  # none kept: states last
+        kept = _kept_here(model, base_pose, waypoints, pairs, radii, scratch, start)
+    # Each pair's sphere gap at each waypoint, kept: only a pair whose gap there is not enough
+    # has the waypoint's boxes placed (copied from the kept ones) for a closer look.
+    gaps = kept[2]
+    start_placed = False
     # A lower bound on each pair's distance at the segment's start: what a test there or at
     # an earlier waypoint proved, less the motion since (the bound's own argument). A pair
     # whose credit covers its motion over the segment is free without a look: most pairs,
@@ -206,12 +216,12 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
             if measured[p]:  # its exact clearance here, as the segment before ended
                 bound = credit[p]
             else:
-                if not start_placed:
-                    _place_waypoint(model, base_pose, waypoints, kept, k, scratch, start)
-                    start_placed = True
                 enough = margins[p] + max(motion, resolution)
-                bound = _sphere_gap(start[0], radii, a, b)
+                bound = gaps[p, k]
                 if bound <= enough:
+                    if not start_placed:
+                        _place_waypoint(model, kept, k, start)
+                        start_placed = True
                     bound = _clearance(start, radii, a, b, bound, enough,
                                        margins[p] + resolution)
             measured[p] = False
@@ -224,12 +234,12 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
                 found[k, p] = 0.0
                 continue
             cleared[p] = free / motion * SHRINK
-            if not end_placed:
-                _place_waypoint(model, base_pose, waypoints, kept, k + 1, scratch, end)
-                end_placed = True
             enough = margins[p] + motion * (1.0 - cleared[p])
-            bound = _sphere_gap(end[0], radii, a, b)
+            bound = gaps[p, k + 1]
             if bound <= enough:
+                if not end_placed:
+                    _place_waypoint(model, kept, k + 1, end)
+                    end_placed = True
                 bound = _clearance(end, radii, a, b, bound, enough, margins[p] + resolution)
             free = bound - margins[p]
             # The next segment starts here: a pair its credit leaves untested takes this
@@ -255,8 +265,11 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
                     turned += abs(waypoints[k + 1, j] - waypoints[k, j]) * chord_turns[box, j]
                 bends[box] = chord_reach[box] * turned * turned * CHORD_SAFETY
             if not start_placed:
-                _place_waypoint(model, base_pose, waypoints, kept, k, scratch, start)
+                _place_waypoint(model, kept, k, start)
                 start_placed = True
+            if not end_placed:  # the pieces' last reaches it
+                _place_waypoint(model, kept, k + 1, end)
+                end_placed = True
         s0, near, step = 0.0, start, 1.0
         while waiting:
             s = 1.0
@@ -374,16 +387,38 @@ def _seen_from_a(boxes, a, b):
 
 
 @kernel
-def _place_waypoint(model, base_pose, waypoints, kept, k, scratch, boxes):
-    """Write the robot's boxes at waypoint k into rows 0..B-1 of boxes, from its kept boxes."""
-    if len(kept[0]):
-        centers, rotations, extents = boxes
-        count = model.half_extents.shape[0]
-        copy_into(centers[:count], kept[0][k])
-        copy_into(rotations[:count], kept[1][k])
-        copy_into(extents[:count], model.half_extents)
-    else:
+def _place_waypoint(model, kept, k, boxes):
+    """Write the robot's boxes at waypoint k into rows 0..B-1 of boxes, from the kept ones."""
+    kept_centers, kept_rotations, _ = kept
+    centers, rotations, _ = boxes
+    for b in range(model.half_extents.shape[0]):
+        for i in range(3):
+            centers[b, i] = kept_centers[b, i, k]
+            for j in range(3):
+                rotations[b, i, j] = kept_rotations[b, 3 * i + j, k]
+
+
+@kernel
+def _kept_here(model, base_pose, waypoints, pairs, radii, scratch, boxes):
+    """Return what a waypoints' check keeps (first_uncleared_pieces' ``kept``), placed here.
+
+    For the scenes past the robot's pass, whose check keeps nothing: each waypoint's boxes
+    placed in ``boxes`` (its rows 0..B-1 written) and copied out, and each pair's gap.
+    """
+    count = model.half_extents.shape[0]
+    centers = np.empty((count, 3, waypoints.shape[0]))
+    rotations = np.empty((count, 9, waypoints.shape[0]))
+    gaps = np.empty((pairs.shape[0], waypoints.shape[0]))
+    for k in range(waypoints.shape[0]):
         _place(model, base_pose, waypoints[k], waypoints[k], 0.0, scratch, boxes)
+        for b in range(count):
+            for i in range(3):
+                centers[b, i, k] = boxes[0][b, i]
+                for j in range(3):
+                    rotations[b, 3 * i + j, k] = boxes[1][b, i, j]
+        for p in range(pairs.shape[0]):
+            gaps[p, k] = _sphere_gap(boxes[0], radii, pairs[p, 0], pairs[p, 1])
+    return centers, rotations, gaps
 
 
 @kernel
@@ -411,17 +446,31 @@ def _write_robot_boxes(model, link_rotations, link_translations, boxes):
 
 @kernel
 def _sphere_gap(centers, radii, a, b):
-    """Return the gap between the bounding spheres of boxes a and b, rounding against it.
+    """Return :func:`sphere_gap` of boxes a and b (``radii``: each box's half diagonal)."""
+    return sphere_gap((centers[a, 0], centers[a, 1], centers[a, 2]),
+                      (centers[b, 0], centers[b, 1], centers[b, 2]), radii[a], radii[b])
+
+
+@inlined_kernel
+def sphere_gap(center_a, center_b, radius_a, radius_b):
+    """Return the gap between two bounding spheres, rounding counted against it.
 
     The seed paper's sphere prefilter, as a lower bound on the boxes' distance: most pairs of
-    a free path are proven here, for a few flops. Small, so that numba inlines it in the
-    loops; ``radii``: each box's half diagonal.
+    a free path are proven here, for a few flops. (robot_pass keeps it for every pair at
+    each waypoint, as vectors over the states.)
     """
-    dx = centers[b, 0] - centers[a, 0]
-    dy = centers[b, 1] - centers[a, 1]
-    dz = centers[b, 2] - centers[a, 2]
+    dx = center_b[0] - center_a[0]
+    dy = center_b[1] - center_a[1]
+    dz = center_b[2] - center_a[2]
     between = math.sqrt(dx * dx + dy * dy + dz * dz)
-    return between - radii[a] - radii[b] - TIE_ULPS * EPS * (between + radii[a] + radii[b])
+    return between - radius_a - radius_b - TIE_ULPS * EPS * (between + radius_a + radius_b)
+
+
+@inlined_kernel
+def half_diagonal(extents, row):
+    """Return a box's half diagonal, the radius of its bounding sphere."""
+    e0, e1, e2 = extents[row, 0], extents[row, 1], extents[row, 2]
+    return math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
 
 
 @kernel

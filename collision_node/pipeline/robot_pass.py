@@ -52,6 +52,7 @@ from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORD
 from collision_node.pipeline.robot import (lane_quaternion, lane_rotation, lane_transforms,
                                            lane_vector, NO_INDEX, packed_sizes, placed, turned,
                                            unpack_model)
+from collision_node.pipeline.robot_bodies import half_diagonal, sphere_gap
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
 from collision_node.pipeline.stats import one_pass_stats, Result
@@ -76,7 +77,7 @@ LANES = 8
 # beyond MAX_COORDINATE.
 BAD_JOINT, BAD_CENTER = 1, 2
 # check_robot_states' boxes when they are not kept.
-NOT_KEPT = (np.empty((0, 0, 3)), np.empty((0, 0, 3, 3)))
+NOT_KEPT = (np.empty((0, 3, 0)), np.empty((0, 9, 0)), np.empty((0, 0)))
 
 
 class RobotRows:
@@ -165,14 +166,14 @@ class RobotRows:
     def check(self, states, first_state, stop_state, kept=None, chunk=0):
         """Return check_robot_states' answer for states ``[first_state, stop_state)``.
 
-        ``kept`` (box centres (K, B, 3), rotations (K, B, 3, 3)): where to keep each state's
-        robot boxes (a trajectory's segments start from them); None: not kept.
+        ``kept`` (box centres (B, 3, K), rotations (B, 9, K) row-major, each listed pair's
+        sphere gap (P, K)): where to keep each state's robot boxes (a trajectory's segments
+        start from them: robot_bodies.first_uncleared_pieces); None: not kept.
         ``chunk``: the workspace to use (:meth:`reserve`), one per chunk checked at once.
         """
         floats, ints = self._workspaces[chunk]
-        kept_centers, kept_rotations = NOT_KEPT if kept is None else kept
-        return check_robot_states(states, floats, ints, first_state, stop_state, kept_centers,
-                                  kept_rotations)
+        return check_robot_states(states, floats, ints, first_state, stop_state,
+                                  *(NOT_KEPT if kept is None else kept))
 
 
 def _may_come_near(bodies, a, rows, table, pad):
@@ -214,13 +215,14 @@ def _slack(scale):
 
 @kernel
 def check_robot_states(states, floats, ints, first_state, stop_state, kept_centers,
-                       kept_rotations):
+                       kept_rotations, kept_gaps):
     """Check joint states ``[first_state, stop_state)`` of ``states`` (K, dof) (module docstring).
 
     ``floats`` and ``ints`` a workspace of :func:`_workspace` (the model, the pairs and
     settings, the rows and scratch); each state's robot boxes are written to ``kept_centers``
-    and ``kept_rotations`` (RobotRows.check) unless they are empty, each rotation straight from
-    its link's (robot.box_rotation), not through the quaternion a pose holds. Returns
+    and ``kept_rotations`` (RobotRows.check: the state last) unless they are empty, each
+    rotation straight from its link's (robot.box_rotation), not through the quaternion a pose
+    holds, and each listed pair's robot_bodies.sphere_gap to ``kept_gaps``. Returns
     (contacts with their state, (pairs the culls passed, SAT tests), first failed state
     or -1, its box (NON_FINITE_JOINT: its q), obb reason code, 1 if the SAT met NaN).
 
@@ -230,10 +232,9 @@ def check_robot_states(states, floats, ints, first_state, stop_state, kept_cente
     """
     links, count = ints[0], ints[1]
     lanes = (np.zeros(LANES), np.zeros((links, 4, LANES)), np.zeros((links, 9, LANES)),
-             np.zeros((links, 3, LANES)), np.zeros((count, 3, LANES)), np.zeros(LANES),
-             np.zeros((count, 9, LANES)))
-    return _checked(states, floats, ints, first_state, stop_state, kept_centers,
-                    kept_rotations, LANES, lanes)
+             np.zeros((links, 3, LANES)), np.zeros((count, 3, LANES)), np.zeros(LANES))
+    return _checked(states, floats, ints, first_state, stop_state,
+                    (kept_centers, kept_rotations, kept_gaps), LANES, lanes)
 
 
 @kernel
@@ -246,12 +247,12 @@ def check_robot_state(q, floats, ints):
     constants: _jit, "Constant arguments".)
     """
     return _checked(view(q, 0, (1, q.shape[0])), floats, ints, np.int64(0), np.int64(1),
-                    np.empty((0, 0, 3)), np.empty((0, 0, 3, 3)), 1, _views(floats, ints)[-2])
+                    (np.empty((0, 3, 0)), np.empty((0, 9, 0)), np.empty((0, 0))), 1,
+                    _views(floats, ints)[-3])
 
 
 @inlined_kernel
-def _checked(states, floats, ints, first_state, stop_state, kept_centers, kept_rotations, lanes,
-             lane_floats):
+def _checked(states, floats, ints, first_state, stop_state, kept, lanes, lane_floats):
     """:func:`check_robot_states`, run ``lanes`` lanes at a time in ``lane_floats``.
 
     ``lanes`` states at a time: their forward kinematics, centres and culls with the state
@@ -259,15 +260,15 @@ def _checked(states, floats, ints, first_state, stop_state, kept_centers, kept_r
     where a state checked alone would: its q, then its boxes' centres, then its SAT, and a
     state's failure returns before any later state's SAT runs. ``lane_floats``: (half angles
     (LANES,), the link frames (quaternions, rotations, translations), the box centres
-    (B, 3, LANES), the rounding allowances (LANES,), the box rotations kept (B, 9, LANES)).
+    (B, 3, LANES), the rounding allowances (LANES,)). ``kept``: check_robot_states'.
     """
     model = unpack_model(ints, floats)
     count = model.half_extents.shape[0]
     (base_pose, settings, bounds, pairs, keys, centers, rotations, extents, aabbs, radii,
-     margins, depth, normal, point, oriented, candidates, _, (listed, listed_counts, failures)) \
-        = _views(floats, ints)
-    (halves, lane_quaternions, lane_rotations, lane_translations, lane_centers, ties,
-     lane_box_rotations) = lane_floats
+     margins, depth, normal, point, oriented, candidates, _, (listed, listed_counts, failures),
+     diagonals) = _views(floats, ints)
+    halves, lane_quaternions, lane_rotations, lane_translations, lane_centers, ties = lane_floats
+    kept_centers, kept_rotations, kept_gaps = kept
     oriented[:] = -1  # the state each box was last oriented for
     most = len(pairs)
     status = np.empty(most, np.int8)
@@ -287,8 +288,9 @@ def _checked(states, floats, ints, first_state, stop_state, kept_centers, kept_r
                         lane_quaternions, lane_rotations, lane_translations)
         _place_lanes(model, width, lane_rotations, lane_translations, lane_centers, ties,
                      failures, bounds)
-        if len(kept_centers):
-            _turn_lanes(model, width, lane_rotations, lane_box_rotations)
+        if kept_centers.shape[2]:  # kept: states last
+            _keep_lanes(model, first, width, pairs, centers, diagonals, lane_rotations,
+                        lane_centers, kept)
         _cull_lanes(count, lanes, width, pairs, centers, rotations, extents, aabbs, radii,
                     margins, settings[PAD], lane_centers, ties, listed, listed_counts)
         for w in range(width):
@@ -298,9 +300,6 @@ def _checked(states, floats, ints, first_state, stop_state, kept_centers, kept_r
             if failures[w] == BAD_CENTER:
                 box, code = _bad_center(count, lane_centers, w)
                 return _failed(state, box, code, 0)
-            if len(kept_centers):
-                _keep_boxes(w, lane_centers, lane_box_rotations, kept_centers[state],
-                            kept_rotations[state])
             n = 0
             for i in range(listed_counts[w]):
                 p = listed[w, i]
@@ -385,7 +384,7 @@ def _cull_lanes(count, lanes, width, pairs, centers, rotations, extents, aabbs, 
         listed_counts[w] = 0
     for p in range(pairs.shape[0]):
         a, b = pairs[p, 0], pairs[p, 1]
-        kept = 0
+        passing = 0
         if b < count:  # two robot boxes: their bounding spheres
             spheres = radii[a] + radii[b]
             for w in range(lanes):
@@ -393,7 +392,7 @@ def _cull_lanes(count, lanes, width, pairs, centers, rotations, extents, aabbs, 
                               lane_centers[b, 2, w])
                 reach = spheres + ties[w]
                 apart = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > reach * reach
-                kept |= np.int64(not apart) << w
+                passing |= np.int64(not apart) << w
         else:  # a robot box's sphere against the static box's AABB, then the box itself
             r, e = matrix(rotations, b), (extents[b, 0], extents[b, 1], extents[b, 2])
             low = (aabbs[b, 0, 0], aabbs[b, 0, 1], aabbs[b, 0, 2])
@@ -412,11 +411,11 @@ def _cull_lanes(count, lanes, width, pairs, centers, rotations, extents, aabbs, 
                 beyond = reach + padding
                 d = _lane_gap(lane_centers, a, w, center[0], center[1], center[2])
                 apart = squared_distance_outside(d, r, e) > beyond * beyond
-                kept |= np.int64(near_box & (not apart)) << w
-        kept &= (1 << width) - 1  # the lanes past the last state repeat it
-        if kept != 0:
+                passing |= np.int64(near_box & (not apart)) << w
+        passing &= (1 << width) - 1  # the lanes past the last state hold an earlier block's
+        if passing != 0:
             for w in range(width):
-                if (kept >> w) & 1:
+                if (passing >> w) & 1:
                     listed[w, listed_counts[w]] = p
                     listed_counts[w] += 1
 
@@ -440,24 +439,41 @@ def _bad_center(count, lane_centers, w):
 
 
 @inlined_kernel
-def _turn_lanes(model, width, lane_rotations, lane_box_rotations):
-    """Write every robot box's rotation in every lane, straight from its link's (box_rotation)."""
-    for b in range(model.box_links.shape[0]):
+def _keep_lanes(model, first, width, pairs, centers, diagonals, lane_rotations, lane_centers,
+                kept):
+    """Write the lanes' robot boxes and pairs' sphere gaps to ``kept`` (check_robot_states').
+
+    States ``first`` on, the state last in each kept array, so that a lane's loop writes a
+    vector: each box's centre, its rotation straight from its link's (robot.box_rotation, not
+    through the quaternion a pose holds), and each listed pair's robot_bodies.sphere_gap
+    (``diagonals``: each row's half diagonal).
+    """
+    kept_centers, kept_rotations, kept_gaps = kept
+    count = model.box_links.shape[0]
+    for b in range(count):
         link, own = model.box_links[b], matrix(model.box_rotations, b)
         for w in range(width):
             r = turned(lane_rotation(lane_rotations, link, w), own)
-            for i in range(9):
-                lane_box_rotations[b, i, w] = r[i]
-
-
-@inlined_kernel
-def _keep_boxes(w, lane_centers, lane_box_rotations, centers, rotations):
-    """Copy lane ``w``'s box centres and rotations to one state's (B, 3) and (B, 3, 3)."""
-    for b in range(centers.shape[0]):
-        for i in range(3):
-            centers[b, i] = lane_centers[b, i, w]
-            for j in range(3):
-                rotations[b, i, j] = lane_box_rotations[b, 3 * i + j, w]
+            kept_rotations[b, 0, first + w], kept_rotations[b, 1, first + w] = r[0], r[1]
+            kept_rotations[b, 2, first + w], kept_rotations[b, 3, first + w] = r[2], r[3]
+            kept_rotations[b, 4, first + w], kept_rotations[b, 5, first + w] = r[4], r[5]
+            kept_rotations[b, 6, first + w], kept_rotations[b, 7, first + w] = r[6], r[7]
+            kept_rotations[b, 8, first + w] = r[8]
+            for i in range(3):
+                kept_centers[b, i, first + w] = lane_centers[b, i, w]
+    for p in range(pairs.shape[0]):
+        a, b = pairs[p, 0], pairs[p, 1]
+        radius_a, radius_b = diagonals[a], diagonals[b]
+        if b < count:
+            for w in range(width):
+                kept_gaps[p, first + w] = sphere_gap(
+                    lane_vector(lane_centers, a, w), lane_vector(lane_centers, b, w), radius_a,
+                    radius_b)
+        else:
+            other = (centers[b, 0], centers[b, 1], centers[b, 2])
+            for w in range(width):
+                kept_gaps[p, first + w] = sphere_gap(lane_vector(lane_centers, a, w), other,
+                                                     radius_a, radius_b)
 
 
 @kernel
@@ -476,7 +492,7 @@ def _workspace(model_ints, model_floats, base_pose, pairs, keys, settings, stati
     base pose, the settings, the culls' rounding bounds, then B robot rows (placed per state)
     and the static rows as sat.collide_pair_rows reads them, filled here (the robot's radii
     padded as the one pass pads its bodies', their margins 0), then scratch: the SAT's
-    outputs and the lanes' (:func:`_views`).
+    outputs and the lanes' (:func:`_views`), then each row's half diagonal.
     """
     model = unpack_model(model_ints, model_floats)
     count, n_static = model.half_extents.shape[0], static_boxes.shape[0]
@@ -484,7 +500,7 @@ def _workspace(model_ints, model_floats, base_pose, pairs, keys, settings, stati
     rows = count + n_static
     model_int_count, model_float_count = packed_sizes(model_ints)
     floats = np.zeros(model_float_count + ROWS + rows * ROW_FLOATS + most * 7
-                      + LANES * (2 + links * 16 + count * 12))
+                      + LANES * (2 + links * 16 + count * 3) + rows)
     ints = np.zeros(model_int_count + 2 + most * 5 + count + most * 3 + LANES * (most + 2),
                     np.int64)
     copy_into(floats[:model_float_count], model_floats)
@@ -512,7 +528,9 @@ def _workspace(model_ints, model_floats, base_pose, pairs, keys, settings, stati
                 rotations[row, m, n] = box[ROTATION + 3 * m + n]
         radii[row] = box[RADIUS]
         margins[row] = box[OWN_MARGIN]
+    diagonals = _views(floats, ints)[-1]
     for row in range(rows):
+        diagonals[row] = half_diagonal(extents, row)
         bounds[0] = max(bounds[0], radii[row] + margins[row] + extents[row, 0]
                         + extents[row, 1] + extents[row, 2])
         if row >= count:
@@ -529,9 +547,9 @@ def _views(floats, ints):
     their keys; (centers, rotations, extents, aabbs, radii, margins) of every row, the SAT's
     (depth, normal, point) per candidate, the state each robot box was last oriented for and
     the candidates (their rows, their pair); then the lanes' scratch (check_robot_states):
-    the half angles, the link frames (robot.lane_transforms), the box centres, rounding
-    allowances and rotations (when kept), the pairs each lane's culls pass and their count,
-    and each lane's failure.
+    the half angles, the link frames (robot.lane_transforms), the box centres and rounding
+    allowances, the pairs each lane's culls pass and their count, and each lane's failure;
+    last, each row's half diagonal (the radius of robot_bodies.sphere_gap).
     """
     at_int, at = packed_sizes(ints)
     count, links = ints[1], ints[0]
@@ -573,7 +591,7 @@ def _views(floats, ints):
     lane_translations = view(floats, at, (links, 3, LANES))
     at += links * 3 * LANES
     lane_centers = view(floats, at, (count, 3, LANES))
-    lane_box_rotations = view(floats, at + count * 3 * LANES, (count, 9, LANES))
+    diagonals = view(floats, at + count * 3 * LANES, (rows,))
     at_int += count + most * 3
     listed = view(ints, at_int, (LANES, most))
     at_int += LANES * most
@@ -581,9 +599,8 @@ def _views(floats, ints):
     failures = view(ints, at_int + LANES, (LANES,))
     return (base_pose, settings, bounds, pairs, keys, centers, rotations, extents, aabbs,
             radii, margins, depth, normal, point, oriented, candidates,
-            (halves, lane_quaternions, lane_rotations, lane_translations, lane_centers, ties,
-             lane_box_rotations),
-            (listed, listed_counts, failures))
+            (halves, lane_quaternions, lane_rotations, lane_translations, lane_centers, ties),
+            (listed, listed_counts, failures), diagonals)
 
 
 @inlined_kernel

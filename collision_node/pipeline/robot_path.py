@@ -41,8 +41,8 @@ class RobotPath:
     def check_joints(self, q, one_pass_pairs, kept=None):
         """Check the robot at joint values ``q`` as World.check_joints does.
 
-        ``kept``: where the robot's pass keeps each state's robot boxes (centres, rotations:
-        robot_pass.RobotRows.check); left unwritten when the scene is too large for it.
+        ``kept``: where the robot's pass keeps each state's robot boxes and pairs' gaps
+        (robot_pass.RobotRows.check); left unwritten when the scene is too large for it.
         """
         start = time.perf_counter()
         rows = self._rows
@@ -100,12 +100,14 @@ class RobotPath:
         bodies = self._robot_bodies()
         waypoints = bodies.robot._states(waypoints)
         rows = self._robot_rows(bodies)
-        # The waypoints' robot boxes, kept by their exact check for the segments' ends: their
-        # forward kinematics runs once. Not kept (left empty) beyond the robot's pass.
+        # The waypoints' robot boxes and pairs' sphere gaps, kept by their exact check for the
+        # segments' ends: their forward kinematics runs once. Not kept (left empty) beyond the
+        # robot's pass.
         boxes = bodies.count
         small = rows.all_pairs <= one_pass_pairs
-        kept = (np.empty((len(waypoints) if small else 0, boxes, 3)),
-                np.empty((len(waypoints) if small else 0, boxes, 3, 3)))
+        states = len(waypoints) if small else 0
+        kept = (np.empty((boxes, 3, states)), np.empty((boxes, 9, states)),
+                np.empty((len(rows.pairs), states)))
         exact = self.check_joints(waypoints, one_pass_pairs, kept).contacts
         if len(waypoints) < 2:
             return Result(exact, {})
