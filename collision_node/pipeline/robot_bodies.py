@@ -35,7 +35,9 @@ at most ``resolution`` is reported, with ``toi`` that configuration. So a segmen
 only when a configuration on it comes within ``resolution`` of the pair's margin (colliding,
 with margin 0, or within ``resolution`` of it), and every segment with a colliding
 configuration is reported: nothing between waypoints is missed. A sampled check (MoveIt's, at
-its waypoints or at a fixed step) promises neither. """ import math
+its waypoints or at a fixed step) promises neither.
+"""
+import math
 
 import numpy as np
 
