@@ -3,7 +3,8 @@
 The URDF is parsed once in Python (collision_node.pipeline.urdf, .meshes) into
 :class:`RobotModel`, a named tuple of flat arrays (pinocchio's ``Model`` idea: parents,
 joint placements, q indices); :func:`forward_kinematics`, a kernel other kernels may call,
-walks it once per state.
+walks it once per state, and :func:`lane_transforms` for several states at once, the state
+innermost (the robot's pass), to the same bits.
 
 Joints. Each link but the root hangs from one joint: link frame = parent frame * origin *
 motion, the motion a turn about the unit axis (revolute, continuous) or a slide along it
