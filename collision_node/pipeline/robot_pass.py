@@ -268,7 +268,6 @@ def _checked(states, floats, ints, first_state, stop_state, kept, lanes, lane_fl
      margins, depth, normal, point, oriented, candidates, _, (listed, listed_counts, failures),
      diagonals) = _views(floats, ints)
     halves, lane_quaternions, lane_rotations, lane_translations, lane_centers, ties = lane_floats
-    kept_centers, kept_rotations, kept_gaps = kept
     oriented[:] = -1  # the state each box was last oriented for
     most = len(pairs)
     status = np.empty(most, np.int8)
@@ -288,7 +287,7 @@ def _checked(states, floats, ints, first_state, stop_state, kept, lanes, lane_fl
                         lane_quaternions, lane_rotations, lane_translations)
         _place_lanes(model, width, lane_rotations, lane_translations, lane_centers, ties,
                      failures, bounds)
-        if kept_centers.shape[2]:  # kept: states last
+        if kept[0].shape[2]:  # states kept (the state last)
             _keep_lanes(model, first, width, pairs, centers, diagonals, lane_rotations,
                         lane_centers, kept)
         _cull_lanes(count, lanes, width, pairs, centers, rotations, extents, aabbs, radii,
