@@ -14,7 +14,7 @@ per array per call), which cost more than the whole SAT. And each helper that in
 is called with constant indices, so that it is inlined and the indexing resolved at compile
 time; a tuple indexed at run time compiles to a branch per element.
 """
-from collision_node.pipeline._jit import kernel
+from collision_node.pipeline._jit import inlined_kernel, kernel
 
 # Two edges whose cross product is shorter than this are parallel: their axis is the zero
 # vector and the face axes already decide the pair. Any longer cross product is a valid axis,
@@ -84,6 +84,30 @@ def rotate(matrix, v):
     return (matrix[0] * v[0] + matrix[1] * v[1] + matrix[2] * v[2],
             matrix[3] * v[0] + matrix[4] * v[1] + matrix[5] * v[2],
             matrix[6] * v[0] + matrix[7] * v[1] + matrix[8] * v[2])
+
+
+@inlined_kernel
+def placed(r, t, p):
+    """Return the point ``p`` of a frame (rotation ``r`` row-major, origin ``t``) outside it.
+
+    t + r p, the origin added first and the products one by one (not t + :func:`rotate`):
+    the order the forward kinematics' frames and box centres have always been summed in,
+    which the robot's kernels share to the bit. Inlined by numba, so that the robot's loops
+    over states vectorize.
+    """
+    return (t[0] + r[0] * p[0] + r[1] * p[1] + r[2] * p[2],
+            t[1] + r[3] * p[0] + r[4] * p[1] + r[5] * p[2],
+            t[2] + r[6] * p[0] + r[7] * p[1] + r[8] * p[2])
+
+
+@inlined_kernel
+def turned(r, m):
+    """Return the rotation r m (row-major 9-tuples): m's axes turned by r (inlined as placed)."""
+    return (r[0] * m[0] + r[1] * m[3] + r[2] * m[6], r[0] * m[1] + r[1] * m[4] + r[2] * m[7],
+            r[0] * m[2] + r[1] * m[5] + r[2] * m[8], r[3] * m[0] + r[4] * m[3] + r[5] * m[6],
+            r[3] * m[1] + r[4] * m[4] + r[5] * m[7], r[3] * m[2] + r[4] * m[5] + r[5] * m[8],
+            r[6] * m[0] + r[7] * m[3] + r[8] * m[6], r[6] * m[1] + r[7] * m[4] + r[8] * m[7],
+            r[6] * m[2] + r[7] * m[5] + r[8] * m[8])
 
 
 @kernel

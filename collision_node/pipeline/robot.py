@@ -88,7 +88,8 @@ import numpy as np
 from collision_node.pipeline import meshes, urdf
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.flat_views import view
-from collision_node.pipeline.frames import matrix, quaternion_product, rotation_from_quaternion
+from collision_node.pipeline.frames import (matrix, placed, quaternion_product,
+                                            rotation_from_quaternion, turned)
 from collision_node.pipeline.trig import REDUCED_LIMIT, reduced_sincos, sincos
 
 # Joint type codes in RobotModel.joint_types (continuous is revolute without limits).
@@ -795,14 +796,6 @@ def _slide(model, link, rotation, value):
 
 
 @inlined_kernel
-def placed(r, t, p):
-    """Return the point ``p`` of a frame (rotation ``r`` row-major, origin ``t``) outside it."""
-    return (t[0] + r[0] * p[0] + r[1] * p[1] + r[2] * p[2],
-            t[1] + r[3] * p[0] + r[4] * p[1] + r[5] * p[2],
-            t[2] + r[6] * p[0] + r[7] * p[1] + r[8] * p[2])
-
-
-@inlined_kernel
 def _moved(rotations, translations, link, t):
     """Return the point ``t`` (3-tuple) of link ``link``'s frame in the root's frame."""
     return placed(matrix(rotations, link),
@@ -908,16 +901,6 @@ def box_quaternion(model, quaternions, b):
 def box_rotation(model, rotations, b):
     """Return box b's rotation (row-major 9-tuple) from the link frames (as box_center)."""
     return turned(matrix(rotations, model.box_links[b]), matrix(model.box_rotations, b))
-
-
-@inlined_kernel
-def turned(r, m):
-    """Return the rotation r m (row-major 9-tuples): m's axes turned by r."""
-    return (r[0] * m[0] + r[1] * m[3] + r[2] * m[6], r[0] * m[1] + r[1] * m[4] + r[2] * m[7],
-            r[0] * m[2] + r[1] * m[5] + r[2] * m[8], r[3] * m[0] + r[4] * m[3] + r[5] * m[6],
-            r[3] * m[1] + r[4] * m[4] + r[5] * m[7], r[3] * m[2] + r[4] * m[5] + r[5] * m[8],
-            r[6] * m[0] + r[7] * m[3] + r[8] * m[6], r[6] * m[1] + r[7] * m[4] + r[8] * m[7],
-            r[6] * m[2] + r[7] * m[5] + r[8] * m[8])
 
 
 @kernel

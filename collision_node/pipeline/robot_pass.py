@@ -46,12 +46,12 @@ import numpy as np
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE, STATIC, write_contact
 from collision_node.pipeline.flat_views import copy_into, view
-from collision_node.pipeline.frames import matrix, quaternion_product, squared_distance_outside
+from collision_node.pipeline.frames import (matrix, placed, quaternion_product,
+                                            squared_distance_outside, turned)
 from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORDINATE,
                                          NON_FINITE_POSE, OUT_OF_RANGE, TIE_ULPS, VALID)
 from collision_node.pipeline.robot import (lane_quaternion, lane_rotation, lane_transforms,
-                                           lane_vector, NO_INDEX, packed_sizes, placed, turned,
-                                           unpack_model)
+                                           lane_vector, NO_INDEX, packed_sizes, unpack_model)
 from collision_node.pipeline.robot_bodies import half_diagonal, sphere_gap
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
