@@ -101,17 +101,19 @@ class RobotBodies:
         return out
 
 
-def segment_contacts(world, bodies, waypoints, exact, found, keys):
+def segment_contacts(world, bodies, waypoints, exact, found, reports, keys):
     """Return the trajectory's contacts: the waypoints' ``exact`` ones and the segments'.
 
-    ``found`` (W - 1, P) from :func:`first_uncleared_pieces`, ``keys`` (P, 3) each pair's
-    (id_a, type_b, id_b). A segment's row carries the contact of its pair at q(toi) when the
-    pair collides there; a pair reported at toi 0 that waypoint k reports already is left out.
+    ``found`` (W - 1, P) and its count of ``reports`` from :func:`first_uncleared_pieces`,
+    ``keys`` (P, 3) each pair's (id_a, type_b, id_b). A segment's row carries the contact of
+    its pair at q(toi) when the pair collides there; a pair reported at toi 0 that waypoint k
+    reports already is left out.
     """
-    at_waypoints = exact.copy()
-    at_waypoints['toi'] = 0.0  # check_states marks a discrete contact at the step's end, 1
-    if not found.size or found.max() < 0.0:  # a free path's: sorted, as check_states sorts
-        return at_waypoints
+    if len(exact):  # (an empty one is returned as it is: a copy costs 3 us)
+        exact = exact.copy()
+        exact['toi'] = 0.0  # check_states marks a discrete contact at the step's end, 1
+    if not reports:  # a free path's: sorted, as check_states sorts
+        return exact
     segment, pair = np.nonzero(found >= 0)
     toi = found[segment, pair]
     reported = {(row['state'], row['id_a'], row['type_b'], row['id_b']) for row in exact}
@@ -131,7 +133,7 @@ def segment_contacts(world, bodies, waypoints, exact, found, keys):
             if contact is not None:
                 for name in GEOMETRY:
                     rows[i][name] = contact[name]
-    contacts = np.concatenate([at_waypoints, rows])
+    contacts = np.concatenate([exact, rows])
     order = np.lexsort((contacts['toi'], contacts['id_b'], contacts['type_b'], contacts['id_a'],
                         contacts['state']))
     return contacts[order]
@@ -151,12 +153,14 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
     (P, W), as the waypoints' check kept them (robot_pass.check_robot_states), or none
     (empty): then they are computed here.
     ``chord_turns`` (B, dof) and ``chord_reach`` (B,): Robot's, the Chord bound. Returns
-    (W - 1, P): s in [0, 1) where the pair comes within ``resolution`` of its margin, or -1
-    (the whole segment is proven free). The model as robot.pack_model packs it.
+    (found, reports): found (W - 1, P) s in [0, 1) where the pair comes within
+    ``resolution`` of its margin, or -1 (the whole segment is proven free), and how many are
+    not -1. The model as robot.pack_model packs it.
     """
     model = unpack_model(model_ints, model_floats)
     dof = waypoints.shape[1]
     found = np.full((waypoints.shape[0] - 1, len(pairs)), -1.0)
+    reports = 0
     scratch = (np.empty(dof),) + link_frames(model)  # q and the link frames
     # The boxes at the segment's start (its first waypoint), end and current configuration,
     # each placed when a pair needs it: the end's placement is the next segment's start.
@@ -232,6 +236,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
             credit[p] = -np.inf  # unknown at the end until a test there
             if free <= resolution:
                 found[k, p] = 0.0
+                reports += 1
                 continue
             cleared[p] = free / motion * SHRINK
             enough = margins[p] + motion * (1.0 - cleared[p])
@@ -303,11 +308,13 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
                 free = bound - margins[p]
                 if stopped and free <= resolution:
                     found[k, p] = s
+                    reports += 1
                     continue
                 if free > 0.0:
                     cleared[p] = max(cleared[p], s + free / motion * SHRINK)
                 if stopped and cleared[p] <= s:  # no progress left in float64: report
                     found[k, p] = s
+                    reports += 1
                     continue
                 if from_end[p] > cleared[p]:
                     pending[left] = p
@@ -317,7 +324,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
         # The end is the next segment's start; near and at, the two others, its end and at.
         start, end, at = end, near, at
         start_placed = end_placed
-    return found
+    return found, reports
 
 
 @kernel

@@ -38,27 +38,29 @@ class RobotPath:
         """Take ``bodies`` (robot_bodies.RobotBodies) as the robot; the World set its filter."""
         self.bodies = bodies
 
-    def check_joints(self, q, one_pass_pairs, kept=None):
-        """Check the robot at joint values ``q`` as World.check_joints does.
-
-        ``kept``: where the robot's pass keeps each state's robot boxes and pairs' gaps
-        (robot_pass.RobotRows.check); left unwritten when the scene is too large for it.
-        """
+    def check_joints(self, q, one_pass_pairs):
+        """Check the robot at joint values ``q`` as World.check_joints does."""
         start = time.perf_counter()
         rows = self._rows
         if rows is None or rows.version != self._scene.version or rows.bodies is not self.bodies:
             rows = self._robot_rows(self._robot_bodies())
-        small = rows.all_pairs <= one_pass_pairs
         # One state as a planner hands it goes in as it is, with no more Python than the pass
         # needs: for a robot's few boxes, the Python around the pass costs as much as the pass.
         # A state that fails is checked again the full way below, which says why.
         if type(q) is np.ndarray and q.shape == rows.one_state and q.dtype is FLOAT64 \
-                and q.flags.carray and small and kept is None:
+                and q.flags.carray and rows.all_pairs <= one_pass_pairs:
             result = rows.check_one(q, start)
             if result is not None:
                 return result
-        states = rows.bodies.robot._states(q)
-        if not small:
+        return self._check_states(rows, rows.bodies.robot._states(q), one_pass_pairs, start)
+
+    def _check_states(self, rows, states, one_pass_pairs, start, kept=None):
+        """Check ``states`` (K, dof), as Robot._states returns them, against ``rows``.
+
+        ``kept``: where the robot's pass keeps each state's robot boxes and pairs' gaps
+        (robot_pass.RobotRows.check); left unwritten when the scene is too large for it.
+        """
+        if rows.all_pairs > one_pass_pairs:
             return self._batches.check(rows.bodies.poses(states), rows.bodies.robot.half_extents,
                                        one_pass_pairs)
         if len(states) == 1:
@@ -97,6 +99,7 @@ class RobotPath:
     def check_trajectory(self, world, waypoints, one_pass_pairs,
                          resolution=DEFAULT_RESOLUTION):
         """Check a joint-space path as World.check_trajectory does (``world`` checks joints)."""
+        start = time.perf_counter()
         bodies = self._robot_bodies()
         waypoints = bodies.robot._states(waypoints)
         rows = self._robot_rows(bodies)
@@ -108,14 +111,13 @@ class RobotPath:
         states = len(waypoints) if small else 0
         kept = (np.empty((boxes, 3, states)), np.empty((boxes, 9, states)),
                 np.empty((len(rows.pairs), states)))
-        exact = self.check_joints(waypoints, one_pass_pairs, kept).contacts
-        if len(waypoints) < 2:
-            return Result(exact, {})
-        found = first_uncleared_pieces(*bodies.packed_model, bodies.base_pose, waypoints, kept,
-                                       rows.pairs, rows.motion_radii, rows.margins, rows.boxes,
-                                       bodies.robot.chord_turns, bodies.robot.chord_reach,
-                                       max(resolution, 1e-12))
-        return Result(segment_contacts(world, bodies, waypoints, exact, found, rows.keys), {})
+        exact = self._check_states(rows, waypoints, one_pass_pairs, start, kept).contacts
+        found, reports = (None, 0) if len(waypoints) < 2 else first_uncleared_pieces(
+            *bodies.packed_model, bodies.base_pose, waypoints, kept, rows.pairs,
+            rows.motion_radii, rows.margins, rows.boxes, bodies.robot.chord_turns,
+            bodies.robot.chord_reach, max(resolution, 1e-12))
+        return Result(segment_contacts(world, bodies, waypoints, exact, found, reports,
+                                       rows.keys), {})
 
     def _robot_bodies(self):
         if self.bodies is None:
