@@ -10,6 +10,7 @@ import pytest
 
 from collision_node import World
 from collision_node.pipeline.contacts import DYNAMIC, STATIC
+from collision_node.pipeline.robot_bodies import sphere_box_gap, sphere_gap
 from collision_node.pipeline.sat import signed_distance
 
 STATIC_POSES = [[0.5, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0],       # a wall in front
@@ -287,3 +288,32 @@ def test_a_reported_segment_is_within_twice_the_resolution_of_contact(panda, see
         distance = signed_distance(center_a, rotation_a, panda.half_extents[row['id_a']],
                                    center_b, rotation_b, half_b).distance
         assert distance <= 2 * resolution + 1e-9, (row, distance)
+
+
+def random_rotation(rng):
+    quaternion = rng.normal(size=4)
+    return box_frame(np.concatenate([np.zeros(3), quaternion / np.linalg.norm(quaternion)]))[1]
+
+
+def test_the_gaps_a_segment_starts_from_never_exceed_the_distance():
+    """The kept gaps are lower bounds: sphere against sphere, sphere against a static box.
+
+    Against the SAT's exact distance, on random pairs from overlapping to a metre apart and
+    on a small box resting on a table's face, where the sphere-to-box gap is the height
+    of the box's centre less its half diagonal, not the table's huge sphere's.
+    """
+    rng = np.random.default_rng(5)
+    for _ in range(2000):
+        center_a, center_b = rng.uniform(-1.0, 1.0, (2, 3))
+        rotation_a, rotation_b = random_rotation(rng), random_rotation(rng)
+        half_a, half_b = rng.uniform(0.01, 0.5, (2, 3))
+        distance = max(signed_distance(center_a, rotation_a, half_a, center_b, rotation_b,
+                                       half_b).distance, 0.0)
+        radius_a, radius_b = np.linalg.norm(half_a), np.linalg.norm(half_b)
+        assert sphere_gap(tuple(center_a), tuple(center_b), radius_a, radius_b) <= distance
+        assert sphere_box_gap(tuple(center_a), radius_a, tuple(center_b),
+                              tuple(rotation_b.ravel()), tuple(half_b)) <= distance
+    table = ((0.0, 0.0, -0.05), (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0), (1.0, 1.0, 0.05))
+    half = np.array([0.03, 0.04, 0.12])
+    gap = sphere_box_gap((0.2, -0.3, 0.5), np.linalg.norm(half), *table)
+    assert gap == pytest.approx(0.5 - 0.13, abs=1e-12) and gap < 0.5 - 0.13

@@ -15,8 +15,8 @@ configuration where the pair is ``clearance`` farther apart than its margin prov
 free on every configuration within clearance / motion of it on the segment.
 
 The proof is conservative advancement, with a second bound for the pairs that pass near. The
-waypoints' exact check keeps their boxes and each pair's sphere gap (robot_pass, as vectors
-over the waypoints), and a segment's ends are placed (copied from what was kept) only for a
+waypoints' exact check keeps their boxes and each pair's gap (robot_pass, as vectors over the
+waypoints: bounding spheres apart, or a robot box's sphere from a static box), and a segment's ends are placed (copied from what was kept) only for a
 pair whose gap there is not enough; a pair whose clearance at the start covers the whole
 segment, or whose clearances at the two ends meet, is free. For the pairs left, a piece of the
 segment from s0 (where all of them are proven so far) to s is proven at once when, for each
@@ -149,7 +149,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
     (P, 2) rows of ``boxes``, the first one a robot box, ``pair_radii`` (P, dof) their
     Robot.pair_motion_radii, ``margins`` (P,) the distance within which each pair counts
     (robot_pass.RobotRows holds all four). ``kept`` the waypoints' robot boxes (centres
-    (B, 3, W), rotations (B, 9, W) row-major) and each pair's :func:`sphere_gap` there
+    (B, 3, W), rotations (B, 9, W) row-major) and each pair's :func:`_pair_gap` there
     (P, W), as the waypoints' check kept them (robot_pass.check_robot_states), or none
     (empty): then they are computed here.
     ``chord_turns`` (B, dof) and ``chord_reach`` (B,): Robot's, the Chord bound. Returns
@@ -175,7 +175,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
         radii[row] = half_diagonal(start[2], row)
     if kept[0].shape[2] == 0:  # none kept: states last
         kept = _kept_here(model, base_pose, waypoints, pairs, radii, scratch, start)
-    # Each pair's sphere gap at each waypoint, kept: only a pair whose gap there is not enough
+    # Each pair's gap at each waypoint, kept: only a pair whose gap there is not enough
     # has the waypoint's boxes placed (copied from the kept ones) for a closer look.
     gaps = kept[2]
     start_placed = False
@@ -301,7 +301,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
                 stopped = cleared[p] <= s
                 cleared[p] = max(cleared[p], s)
                 enough = margins[p] + max(motion * (from_end[p] - s), resolution)
-                bound = _sphere_gap(at[0], radii, a, b)
+                bound = _pair_gap(at, radii, a, b, robot_boxes)
                 if bound <= enough:
                     bound = _clearance(at, radii, a, b, bound, enough,
                                        margins[p] + resolution if stopped else -np.inf)
@@ -424,7 +424,7 @@ def _kept_here(model, base_pose, waypoints, pairs, radii, scratch, boxes):
                 for j in range(3):
                     rotations[b, 3 * i + j, k] = boxes[1][b, i, j]
         for p in range(pairs.shape[0]):
-            gaps[p, k] = _sphere_gap(boxes[0], radii, pairs[p, 0], pairs[p, 1])
+            gaps[p, k] = _pair_gap(boxes, radii, pairs[p, 0], pairs[p, 1], count)
     return centers, rotations, gaps
 
 
@@ -452,10 +452,18 @@ def _write_robot_boxes(model, link_rotations, link_translations, boxes):
 
 
 @kernel
-def _sphere_gap(centers, radii, a, b):
-    """Return :func:`sphere_gap` of boxes a and b (``radii``: each box's half diagonal)."""
-    return sphere_gap((centers[a, 0], centers[a, 1], centers[a, 2]),
-                      (centers[b, 0], centers[b, 1], centers[b, 2]), radii[a], radii[b])
+def _pair_gap(boxes, radii, a, b, robot_boxes):
+    """Return the gap the waypoints' check keeps for boxes a and b (``radii``: half diagonals).
+
+    :func:`sphere_gap` for two robot boxes, :func:`sphere_box_gap` for a static box b.
+    """
+    centers, rotations, extents = boxes
+    center_a = (centers[a, 0], centers[a, 1], centers[a, 2])
+    center_b = (centers[b, 0], centers[b, 1], centers[b, 2])
+    if b < robot_boxes:
+        return sphere_gap(center_a, center_b, radii[a], radii[b])
+    return sphere_box_gap(center_a, radii[a], center_b, matrix(rotations, b),
+                          (extents[b, 0], extents[b, 1], extents[b, 2]))
 
 
 @inlined_kernel
@@ -463,14 +471,27 @@ def sphere_gap(center_a, center_b, radius_a, radius_b):
     """Return the gap between two bounding spheres, rounding counted against it.
 
     The seed paper's sphere prefilter, as a lower bound on the boxes' distance: most pairs of
-    a free path are proven here, for a few flops. (robot_pass keeps it for every pair at
-    each waypoint, as vectors over the states.)
+    robot boxes on a free path are proven here, for a few flops. (robot_pass keeps it for
+    every such pair at each waypoint, as vectors over the states.)
     """
     dx = center_b[0] - center_a[0]
     dy = center_b[1] - center_a[1]
     dz = center_b[2] - center_a[2]
     between = math.sqrt(dx * dx + dy * dy + dz * dz)
     return between - radius_a - radius_b - TIE_ULPS * EPS * (between + radius_a + radius_b)
+
+
+@inlined_kernel
+def sphere_box_gap(center, radius, box_center, r, e):
+    """Return the gap between a bounding sphere and a box, rounding counted against it.
+
+    For a robot box against a static box: the static colliders of a robot's cell (a table,
+    a wall) are large, and their spheres would say nothing. ``r`` the box's rotation
+    (row-major 9-tuple), ``e`` its half extents.
+    """
+    d = (center[0] - box_center[0], center[1] - box_center[1], center[2] - box_center[2])
+    outside = math.sqrt(squared_distance_outside(d, r, e))
+    return outside - radius - TIE_ULPS * EPS * (sum_abs(d) + sum_abs(e) + outside + radius)
 
 
 @inlined_kernel

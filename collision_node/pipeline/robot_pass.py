@@ -52,7 +52,7 @@ from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORD
                                          NON_FINITE_POSE, OUT_OF_RANGE, TIE_ULPS, VALID)
 from collision_node.pipeline.robot import (lane_quaternion, lane_rotation, lane_transforms,
                                            lane_vector, NO_INDEX, packed_sizes, unpack_model)
-from collision_node.pipeline.robot_bodies import half_diagonal, sphere_gap
+from collision_node.pipeline.robot_bodies import half_diagonal, sphere_box_gap, sphere_gap
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
 from collision_node.pipeline.stats import one_pass_stats, Result
@@ -167,7 +167,7 @@ class RobotRows:
         """Return check_robot_states' answer for states ``[first_state, stop_state)``.
 
         ``kept`` (box centres (B, 3, K), rotations (B, 9, K) row-major, each listed pair's
-        sphere gap (P, K)): where to keep each state's robot boxes (a trajectory's segments
+        gap (P, K), as _keep_lanes keeps it): where to keep each state's robot boxes (a trajectory's segments
         start from them: robot_bodies.first_uncleared_pieces); None: not kept.
         ``chunk``: the workspace to use (:meth:`reserve`), one per chunk checked at once.
         """
@@ -222,7 +222,7 @@ def check_robot_states(states, floats, ints, first_state, stop_state, kept_cente
     settings, the rows and scratch); each state's robot boxes are written to ``kept_centers``
     and ``kept_rotations`` (RobotRows.check: the state last) unless they are empty, each
     rotation straight from its link's (robot.box_rotation), not through the quaternion a pose
-    holds, and each listed pair's robot_bodies.sphere_gap to ``kept_gaps``. Returns
+    holds, and each listed pair's gap (as _keep_lanes says) to ``kept_gaps``. Returns
     (contacts with their state, (pairs the culls passed, SAT tests), first failed state
     or -1, its box (NON_FINITE_JOINT: its q), obb reason code, 1 if the SAT met NaN).
 
@@ -288,8 +288,8 @@ def _checked(states, floats, ints, first_state, stop_state, kept, lanes, lane_fl
         _place_lanes(model, width, lane_rotations, lane_translations, lane_centers, ties,
                      failures, bounds)
         if kept[0].shape[2]:  # states kept (the state last)
-            _keep_lanes(model, first, width, pairs, centers, diagonals, lane_rotations,
-                        lane_centers, kept)
+            _keep_lanes(model, first, width, pairs, (centers, rotations, extents), diagonals,
+                        lane_rotations, lane_centers, kept)
         _cull_lanes(count, lanes, width, pairs, centers, rotations, extents, aabbs, radii,
                     margins, settings[PAD], lane_centers, ties, listed, listed_counts)
         for w in range(width):
@@ -438,15 +438,17 @@ def _bad_center(count, lane_centers, w):
 
 
 @inlined_kernel
-def _keep_lanes(model, first, width, pairs, centers, diagonals, lane_rotations, lane_centers,
+def _keep_lanes(model, first, width, pairs, boxes, diagonals, lane_rotations, lane_centers,
                 kept):
-    """Write the lanes' robot boxes and pairs' sphere gaps to ``kept`` (check_robot_states').
+    """Write the lanes' robot boxes and pairs' gaps to ``kept`` (check_robot_states').
 
     States ``first`` on, the state last in each kept array, so that a lane's loop writes a
     vector: each box's centre, its rotation straight from its link's (robot.box_rotation, not
-    through the quaternion a pose holds), and each listed pair's robot_bodies.sphere_gap
-    (``diagonals``: each row's half diagonal).
+    through the quaternion a pose holds), and each listed pair's gap: robot_bodies.sphere_gap
+    for two robot boxes, robot_bodies.sphere_box_gap against a static one (``boxes`` the
+    rows' centers, rotations and extents, ``diagonals`` their half diagonals).
     """
+    centers, rotations, extents = boxes
     kept_centers, kept_rotations, kept_gaps = kept
     count = model.box_links.shape[0]
     for b in range(count):
@@ -470,9 +472,10 @@ def _keep_lanes(model, first, width, pairs, centers, diagonals, lane_rotations, 
                     radius_b)
         else:
             other = (centers[b, 0], centers[b, 1], centers[b, 2])
+            r, e = matrix(rotations, b), (extents[b, 0], extents[b, 1], extents[b, 2])
             for w in range(width):
-                kept_gaps[p, first + w] = sphere_gap(lane_vector(lane_centers, a, w), other,
-                                                     radius_a, radius_b)
+                kept_gaps[p, first + w] = sphere_box_gap(lane_vector(lane_centers, a, w),
+                                                         radius_a, other, r, e)
 
 
 @kernel
@@ -548,7 +551,7 @@ def _views(floats, ints):
     the candidates (their rows, their pair); then the lanes' scratch (check_robot_states):
     the half angles, the link frames (robot.lane_transforms), the box centres and rounding
     allowances, the pairs each lane's culls pass and their count, and each lane's failure;
-    last, each row's half diagonal (the radius of robot_bodies.sphere_gap).
+    last, each row's half diagonal (the radius of its bounding sphere).
     """
     at_int, at = packed_sizes(ints)
     count, links = ints[1], ints[0]

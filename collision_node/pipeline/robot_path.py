@@ -103,7 +103,7 @@ class RobotPath:
         bodies = self._robot_bodies()
         waypoints = bodies.robot._states(waypoints)
         rows = self._robot_rows(bodies)
-        # The waypoints' robot boxes and pairs' sphere gaps, kept by their exact check for the
+        # The waypoints' robot boxes and pairs' gaps, kept by their exact check for the
         # segments' ends: their forward kinematics runs once. Not kept (left empty) beyond the
         # robot's pass.
         boxes = bodies.count
