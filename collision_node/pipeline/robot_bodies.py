@@ -16,26 +16,26 @@ free on every configuration within clearance / motion of it on the segment.
 
 The proof is conservative advancement, with a second bound for the pairs that pass near. The
 waypoints' exact check keeps their boxes and each pair's gap (robot_pass, as vectors over the
-waypoints: bounding spheres apart, or a robot box's sphere from a static box), and a segment's ends are placed (copied from what was kept) only for a
-pair whose gap there is not enough; a pair whose clearance at the start covers the whole
-segment, or whose clearances at the two ends meet, is free. For the pairs left, a piece of the
-segment from s0 (where all of them are proven so far) to s is proven at once when, for each
-pair, one fixed plane keeps its two boxes farther apart than its margin plus the boxes' bends
-at both s0 and s: each point of a box strays from the chord between its two places by at most
-its bend, h² / 8 times a bound on its second derivative along the segment (robot.py, Chord
-bound). That bound shrinks with the square of the piece, where the motion's shrinks with the
-piece alone: a box that passes a wall 4 mm away is proven in a few pieces, where advancement by
-clearance over motion takes a step per 4 mm of its motion bound (doc/robot.md has a count). The
-piece tried first reaches the segment's end, then halves; when it is no longer than
-conservative advancement's step, the boxes are placed where the least proven pair stops being
-proven, which needs no plane. At every place taken, each waiting pair's proof grows: bounding
-spheres, then the separating axis test's widest gap, then for a pair stopped there with a gap
-within ``resolution`` of its margin the exact distance. A stopped pair whose exact clearance is
-at most ``resolution`` is reported, with ``toi`` that configuration. So a segment is reported
-only when a configuration on it comes within ``resolution`` of the pair's margin (colliding,
-with margin 0, or within ``resolution`` of it), and every segment with a colliding
-configuration is reported: nothing between waypoints is missed. A sampled check (MoveIt's, at
-its waypoints or at a fixed step) promises neither.
+waypoints: bounding spheres apart, or a robot box's sphere from a static box), and a segment's
+ends are placed (copied from what was kept) only for a pair whose gap there is not enough; a
+pair whose clearance at the start covers the whole segment, or whose clearances at the two ends
+meet, is free. For the pairs left, a piece of the segment from s0 (where all of them are proven
+so far) to s is proven at once when, for each pair, one fixed plane keeps its two boxes farther
+apart than its margin plus the boxes' bends at both s0 and s: each point of a box strays from
+the chord between its two places by at most its bend, h² / 8 times a bound on its second
+derivative along the segment (robot.py, Chord bound). That bound shrinks with the square of the
+piece, where the motion's shrinks with the piece alone: a box that passes a wall 4 mm away is
+proven in a few pieces, where advancement by clearance over motion takes a step per 4 mm of its
+motion bound (doc/robot.md has a count). The piece tried first reaches the segment's end, then
+halves; when it is no longer than conservative advancement's step, the boxes are placed where
+the least proven pair stops being proven, which needs no plane. At every place taken, each
+waiting pair's proof grows: bounding spheres, then the separating axis test's widest gap, then
+for a pair stopped there with a gap within ``resolution`` of its margin the exact distance. A
+stopped pair whose exact clearance is at most ``resolution`` is reported, with ``toi`` that
+configuration. So a segment is reported only when a configuration on it comes within
+``resolution`` of the pair's margin (colliding, with margin 0, or within ``resolution`` of it),
+and every segment with a colliding configuration is reported: nothing between waypoints is
+missed. A sampled check (MoveIt's, at its waypoints or at a fixed step) promises neither.
 """
 import math
 

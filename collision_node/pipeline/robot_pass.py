@@ -167,8 +167,9 @@ class RobotRows:
         """Return check_robot_states' answer for states ``[first_state, stop_state)``.
 
         ``kept`` (box centres (B, 3, K), rotations (B, 9, K) row-major, each listed pair's
-        gap (P, K), as _keep_lanes keeps it): where to keep each state's robot boxes (a trajectory's segments
-        start from them: robot_bodies.first_uncleared_pieces); None: not kept.
+        gap (P, K), as _keep_lanes keeps it): where to keep each state's robot boxes (a
+        trajectory's segments start from them: robot_bodies.first_uncleared_pieces); None: not
+        kept.
         ``chunk``: the workspace to use (:meth:`reserve`), one per chunk checked at once.
         """
         floats, ints = self._workspaces[chunk]
