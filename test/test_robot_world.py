@@ -10,7 +10,7 @@ import pytest
 
 from collision_node import World
 from collision_node.pipeline.contacts import DYNAMIC, STATIC
-from collision_node.pipeline.robot_bodies import sphere_box_gap, sphere_gap
+from collision_node.pipeline.robot_bodies import gap_terms, separation, separation_gap
 from collision_node.pipeline.sat import signed_distance
 
 STATIC_POSES = [[0.5, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0],       # a wall in front
@@ -296,24 +296,31 @@ def random_rotation(rng):
 
 
 def test_the_gaps_a_segment_starts_from_never_exceed_the_distance():
-    """The kept gaps are lower bounds: sphere against sphere, sphere against a static box.
+    """A pair's kept separation proves a gap no wider than the boxes' distance.
 
-    Against the SAT's exact distance, on random pairs from overlapping to a metre apart and
-    on a small box resting on a table's face, where the sphere-to-box gap is the height
-    of the box's centre less its half diagonal, not the table's huge sphere's.
+    Two robot boxes (their bounding spheres) and a robot box against a static box (its
+    sphere against the box itself), against the SAT's exact distance, on random pairs from
+    overlapping to a metre apart; and a small box over a table, where the gap is the height
+    of the box's centre less its half diagonal, not what the table's huge sphere would leave.
     """
     rng = np.random.default_rng(5)
+    pairs = np.array([[0, 1], [0, 2]])  # rows 0 and 1 robot boxes, row 2 a static box
     for _ in range(2000):
-        center_a, center_b = rng.uniform(-1.0, 1.0, (2, 3))
-        rotation_a, rotation_b = random_rotation(rng), random_rotation(rng)
-        half_a, half_b = rng.uniform(0.01, 0.5, (2, 3))
-        distance = max(signed_distance(center_a, rotation_a, half_a, center_b, rotation_b,
-                                       half_b).distance, 0.0)
-        radius_a, radius_b = np.linalg.norm(half_a), np.linalg.norm(half_b)
-        assert sphere_gap(tuple(center_a), tuple(center_b), radius_a, radius_b) <= distance
-        assert sphere_box_gap(tuple(center_a), radius_a, tuple(center_b),
-                              tuple(rotation_b.ravel()), tuple(half_b)) <= distance
-    table = ((0.0, 0.0, -0.05), (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0), (1.0, 1.0, 0.05))
+        centers = rng.uniform(-1.0, 1.0, (3, 3))
+        rotations = np.array([random_rotation(rng) for _ in range(3)])
+        extents = rng.uniform(0.01, 0.5, (3, 3))
+        extents[2] = extents[1]
+        centers[2], rotations[2] = centers[1], rotations[1]
+        scale, offset = gap_terms(pairs, np.linalg.norm(extents, axis=1), 2)
+        distance = max(signed_distance(centers[0], rotations[0], extents[0], centers[1],
+                                       rotations[1], extents[1]).distance, 0.0)
+        for p, (a, b) in enumerate(pairs):
+            gap = separation_gap(separation((centers, rotations, extents), a, b, 2), scale[p],
+                                 offset[p])
+            assert gap <= distance
     half = np.array([0.03, 0.04, 0.12])
-    gap = sphere_box_gap((0.2, -0.3, 0.5), np.linalg.norm(half), *table)
+    boxes = (np.array([[0.2, -0.3, 0.5], [0.0, 0.0, -0.05]]), np.array([np.eye(3)] * 2),
+             np.array([half, [1.0, 1.0, 0.05]]))
+    scale, offset = gap_terms(np.array([[0, 1]]), np.linalg.norm(boxes[2], axis=1), 1)
+    gap = separation_gap(separation(boxes, 0, 1, 1), scale[0], offset[0])
     assert gap == pytest.approx(0.5 - 0.13, abs=1e-12) and gap < 0.5 - 0.13

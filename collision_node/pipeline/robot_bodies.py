@@ -15,8 +15,8 @@ configuration where the pair is ``clearance`` farther apart than its margin prov
 free on every configuration within clearance / motion of it on the segment.
 
 The proof is conservative advancement, with a second bound for the pairs that pass near. The
-waypoints' exact check keeps their boxes and each pair's gap (robot_pass, as vectors over the
-waypoints: bounding spheres apart, or a robot box's sphere from a static box), and a segment's
+waypoints' exact check keeps their boxes and each pair's separation (robot_pass, as vectors over
+the waypoints; :func:`separation`: its bounding spheres' gap, squared), and a segment's
 ends are placed (copied from what was kept) only for a pair whose gap there is not enough; a
 pair whose clearance at the start covers the whole segment, or whose clearances at the two ends
 meet, is free. For the pairs left, a piece of the segment from s0 (where all of them are proven
@@ -149,7 +149,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
     (P, 2) rows of ``boxes``, the first one a robot box, ``pair_radii`` (P, dof) their
     Robot.pair_motion_radii, ``margins`` (P,) the distance within which each pair counts
     (robot_pass.RobotRows holds all four). ``kept`` the waypoints' robot boxes (centres
-    (B, 3, W), rotations (B, 9, W) row-major) and each pair's :func:`_pair_gap` there
+    (B, 3, W), rotations (B, 9, W) row-major) and each pair's :func:`separation` there
     (P, W), as the waypoints' check kept them (robot_pass.check_robot_states), or none
     (empty): then they are computed here.
     ``chord_turns`` (B, dof) and ``chord_reach`` (B,): Robot's, the Chord bound. Returns
@@ -174,10 +174,11 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
     for row in range(len(radii)):
         radii[row] = half_diagonal(start[2], row)
     if kept[0].shape[2] == 0:  # none kept: states last
-        kept = _kept_here(model, base_pose, waypoints, pairs, radii, scratch, start)
-    # Each pair's gap at each waypoint, kept: only a pair whose gap there is not enough
-    # has the waypoint's boxes placed (copied from the kept ones) for a closer look.
-    gaps = kept[2]
+        kept = _kept_here(model, base_pose, waypoints, pairs, scratch, start)
+    # Each pair's separation at each waypoint, kept: only a pair whose gap there is not
+    # enough has the waypoint's boxes placed (copied from the kept ones) for a closer look.
+    separations = kept[2]
+    scale, offset = gap_terms(pairs, radii, count)
     start_placed = False
     # A lower bound on each pair's distance at the segment's start: what a test there or at
     # an earlier waypoint proved, less the motion since (the bound's own argument). A pair
@@ -221,7 +222,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
                 bound = credit[p]
             else:
                 enough = margins[p] + max(motion, resolution)
-                bound = gaps[p, k]
+                bound = separation_gap(separations[p, k], scale[p], offset[p])
                 if bound <= enough:
                     if not start_placed:
                         _place_waypoint(model, kept, k, start)
@@ -240,7 +241,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
                 continue
             cleared[p] = free / motion * SHRINK
             enough = margins[p] + motion * (1.0 - cleared[p])
-            bound = gaps[p, k + 1]
+            bound = separation_gap(separations[p, k + 1], scale[p], offset[p])
             if bound <= enough:
                 if not end_placed:
                     _place_waypoint(model, kept, k + 1, end)
@@ -301,7 +302,7 @@ def first_uncleared_pieces(model_ints, model_floats, base_pose, waypoints, kept,
                 stopped = cleared[p] <= s
                 cleared[p] = max(cleared[p], s)
                 enough = margins[p] + max(motion * (from_end[p] - s), resolution)
-                bound = _pair_gap(at, radii, a, b, robot_boxes)
+                bound = separation_gap(separation(at, a, b, robot_boxes), scale[p], offset[p])
                 if bound <= enough:
                     bound = _clearance(at, radii, a, b, bound, enough,
                                        margins[p] + resolution if stopped else -np.inf)
@@ -406,7 +407,7 @@ def _place_waypoint(model, kept, k, boxes):
 
 
 @kernel
-def _kept_here(model, base_pose, waypoints, pairs, radii, scratch, boxes):
+def _kept_here(model, base_pose, waypoints, pairs, scratch, boxes):
     """Return what a waypoints' check keeps (first_uncleared_pieces' ``kept``), placed here.
 
     For the scenes past the robot's pass, whose check keeps nothing: each waypoint's boxes
@@ -415,7 +416,7 @@ def _kept_here(model, base_pose, waypoints, pairs, radii, scratch, boxes):
     count = model.half_extents.shape[0]
     centers = np.empty((count, 3, waypoints.shape[0]))
     rotations = np.empty((count, 9, waypoints.shape[0]))
-    gaps = np.empty((pairs.shape[0], waypoints.shape[0]))
+    separations = np.empty((pairs.shape[0], waypoints.shape[0]))
     for k in range(waypoints.shape[0]):
         _place(model, base_pose, waypoints[k], waypoints[k], 0.0, scratch, boxes)
         for b in range(count):
@@ -424,8 +425,8 @@ def _kept_here(model, base_pose, waypoints, pairs, radii, scratch, boxes):
                 for j in range(3):
                     rotations[b, 3 * i + j, k] = boxes[1][b, i, j]
         for p in range(pairs.shape[0]):
-            gaps[p, k] = _pair_gap(boxes, radii, pairs[p, 0], pairs[p, 1], count)
-    return centers, rotations, gaps
+            separations[p, k] = separation(boxes, pairs[p, 0], pairs[p, 1], count)
+    return centers, rotations, separations
 
 
 @kernel
@@ -452,46 +453,57 @@ def _write_robot_boxes(model, link_rotations, link_translations, boxes):
 
 
 @kernel
-def _pair_gap(boxes, radii, a, b, robot_boxes):
-    """Return the gap the waypoints' check keeps for boxes a and b (``radii``: half diagonals).
+def separation(boxes, a, b, robot_boxes):
+    """Return boxes a's and b's separation: their bounding spheres' gap, squared, in a sense.
 
-    :func:`sphere_gap` for two robot boxes, :func:`sphere_box_gap` for a static box b.
+    For two robot boxes, the squared distance between their centres; for a static box b (row
+    ``robot_boxes`` or later), the squared distance from a's centre to the box itself: the
+    static colliders of a robot's cell (a table, a wall) are large, and their spheres would
+    say nothing. Its :func:`separation_gap` less the margin bounds the boxes' distance from
+    below. Squared, so that the waypoints' check takes no square root (robot_pass keeps one
+    for every listed pair at each waypoint, as vectors over the states): a segment takes one
+    only for the pairs its credit leaves.
     """
     centers, rotations, extents = boxes
-    center_a = (centers[a, 0], centers[a, 1], centers[a, 2])
-    center_b = (centers[b, 0], centers[b, 1], centers[b, 2])
+    d = (centers[a, 0] - centers[b, 0], centers[a, 1] - centers[b, 1],
+         centers[a, 2] - centers[b, 2])
     if b < robot_boxes:
-        return sphere_gap(center_a, center_b, radii[a], radii[b])
-    return sphere_box_gap(center_a, radii[a], center_b, matrix(rotations, b),
-                          (extents[b, 0], extents[b, 1], extents[b, 2]))
+        return dot(d, d)
+    return squared_distance_outside(d, matrix(rotations, b),
+                                    (extents[b, 0], extents[b, 1], extents[b, 2]))
 
 
 @inlined_kernel
-def sphere_gap(center_a, center_b, radius_a, radius_b):
-    """Return the gap between two bounding spheres, rounding counted against it.
+def separation_gap(separation, scale, offset):
+    """Return the gap a pair's :func:`separation` proves: its root times scale, less offset.
 
-    The seed paper's sphere prefilter, as a lower bound on the boxes' distance: most pairs of
-    robot boxes on a free path are proven here, for a few flops. (robot_pass keeps it for
-    every such pair at each waypoint, as vectors over the states.)
+    ``scale`` and ``offset`` the pair's :func:`gap_terms`.
     """
-    dx = center_b[0] - center_a[0]
-    dy = center_b[1] - center_a[1]
-    dz = center_b[2] - center_a[2]
-    between = math.sqrt(dx * dx + dy * dy + dz * dz)
-    return between - radius_a - radius_b - TIE_ULPS * EPS * (between + radius_a + radius_b)
+    return math.sqrt(separation) * scale - offset
 
 
-@inlined_kernel
-def sphere_box_gap(center, radius, box_center, r, e):
-    """Return the gap between a bounding sphere and a box, rounding counted against it.
+@kernel
+def gap_terms(pairs, radii, robot_boxes):
+    """Return (scale, offset) (P,): each pair's gap, sqrt(separation) * scale - offset.
 
-    For a robot box against a static box: the static colliders of a robot's cell (a table,
-    a wall) are large, and their spheres would say nothing. ``r`` the box's rotation
-    (row-major 9-tuple), ``e`` its half extents.
+    The seed paper's sphere prefilter, as a lower bound on the boxes' distance: x, the root
+    of the separation, less the robot boxes' half diagonals ``radii`` (for a static box,
+    a's alone), rounding counted against it: TIE_ULPS ulps of x + the radii for two robot
+    boxes; for a static box, of x + the sum of |d| (d: a's centre from b's, |d| <= x + b's
+    half diagonal) + the sum of b's half extents + a's radius, at most 3 x + 4 b's half
+    diagonal + a's radius.
     """
-    d = (center[0] - box_center[0], center[1] - box_center[1], center[2] - box_center[2])
-    outside = math.sqrt(squared_distance_outside(d, r, e))
-    return outside - radius - TIE_ULPS * EPS * (sum_abs(d) + sum_abs(e) + outside + radius)
+    tie = TIE_ULPS * EPS
+    scale, offset = np.empty(len(pairs)), np.empty(len(pairs))
+    for p in range(len(pairs)):
+        a, b = pairs[p, 0], pairs[p, 1]
+        if b < robot_boxes:
+            scale[p] = 1.0 - tie
+            offset[p] = (radii[a] + radii[b]) * (1.0 + tie)
+        else:
+            scale[p] = 1.0 - 3.0 * tie
+            offset[p] = radii[a] * (1.0 + tie) + 4.0 * tie * radii[b]
+    return scale, offset
 
 
 @inlined_kernel

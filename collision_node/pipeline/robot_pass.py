@@ -46,13 +46,12 @@ import numpy as np
 from collision_node.pipeline._jit import inlined_kernel, kernel
 from collision_node.pipeline.contacts import DYNAMIC, STATE_CONTACT_DTYPE, STATIC, write_contact
 from collision_node.pipeline.flat_views import copy_into, view
-from collision_node.pipeline.frames import (matrix, placed, quaternion_product,
+from collision_node.pipeline.frames import (dot, matrix, placed, quaternion_product,
                                             squared_distance_outside, turned)
 from collision_node.pipeline.obb import (aabbs_overlap, box_axes, EPS, MAX_COORDINATE,
                                          NON_FINITE_POSE, OUT_OF_RANGE, TIE_ULPS, VALID)
 from collision_node.pipeline.robot import (lane_quaternion, lane_rotation, lane_transforms,
                                            lane_vector, NO_INDEX, packed_sizes, unpack_model)
-from collision_node.pipeline.robot_bodies import half_diagonal, sphere_box_gap, sphere_gap
 from collision_node.pipeline.sat import collide_pair_rows, COLLIDING, INVALID, NEAR
 from collision_node.pipeline.small_scene import ID as STATICS_ID, ROW as STATICS_ROW
 from collision_node.pipeline.stats import one_pass_stats, Result
@@ -167,7 +166,7 @@ class RobotRows:
         """Return check_robot_states' answer for states ``[first_state, stop_state)``.
 
         ``kept`` (box centres (B, 3, K), rotations (B, 9, K) row-major, each listed pair's
-        gap (P, K), as _keep_lanes keeps it): where to keep each state's robot boxes (a
+        robot_bodies.separation (P, K)): where to keep each state's robot boxes (a
         trajectory's segments start from them: robot_bodies.first_uncleared_pieces); None: not
         kept.
         ``chunk``: the workspace to use (:meth:`reserve`), one per chunk checked at once.
@@ -216,14 +215,14 @@ def _slack(scale):
 
 @kernel
 def check_robot_states(states, floats, ints, first_state, stop_state, kept_centers,
-                       kept_rotations, kept_gaps):
+                       kept_rotations, kept_separations):
     """Check joint states ``[first_state, stop_state)`` of ``states`` (K, dof) (module docstring).
 
     ``floats`` and ``ints`` a workspace of :func:`_workspace` (the model, the pairs and
     settings, the rows and scratch); each state's robot boxes are written to ``kept_centers``
     and ``kept_rotations`` (RobotRows.check: the state last) unless they are empty, each
     rotation straight from its link's (robot.box_rotation), not through the quaternion a pose
-    holds, and each listed pair's gap (as _keep_lanes says) to ``kept_gaps``. Returns
+    holds, and each listed pair's robot_bodies.separation to ``kept_separations``. Returns
     (contacts with their state, (pairs the culls passed, SAT tests), first failed state
     or -1, its box (NON_FINITE_JOINT: its q), obb reason code, 1 if the SAT met NaN).
 
@@ -235,7 +234,7 @@ def check_robot_states(states, floats, ints, first_state, stop_state, kept_cente
     lanes = (np.zeros(LANES), np.zeros((links, 4, LANES)), np.zeros((links, 9, LANES)),
              np.zeros((links, 3, LANES)), np.zeros((count, 3, LANES)), np.zeros(LANES))
     return _checked(states, floats, ints, first_state, stop_state,
-                    (kept_centers, kept_rotations, kept_gaps), LANES, lanes)
+                    (kept_centers, kept_rotations, kept_separations), LANES, lanes)
 
 
 @kernel
@@ -249,7 +248,7 @@ def check_robot_state(q, floats, ints):
     """
     return _checked(view(q, 0, (1, q.shape[0])), floats, ints, np.int64(0), np.int64(1),
                     (np.empty((0, 3, 0)), np.empty((0, 9, 0)), np.empty((0, 0))), 1,
-                    _views(floats, ints)[-3])
+                    _views(floats, ints)[-2])
 
 
 @inlined_kernel
@@ -266,8 +265,8 @@ def _checked(states, floats, ints, first_state, stop_state, kept, lanes, lane_fl
     model = unpack_model(ints, floats)
     count = model.half_extents.shape[0]
     (base_pose, settings, bounds, pairs, keys, centers, rotations, extents, aabbs, radii,
-     margins, depth, normal, point, oriented, candidates, _, (listed, listed_counts, failures),
-     diagonals) = _views(floats, ints)
+     margins, depth, normal, point, oriented, candidates, _,
+     (listed, listed_counts, failures)) = _views(floats, ints)
     halves, lane_quaternions, lane_rotations, lane_translations, lane_centers, ties = lane_floats
     oriented[:] = -1  # the state each box was last oriented for
     most = len(pairs)
@@ -289,7 +288,7 @@ def _checked(states, floats, ints, first_state, stop_state, kept, lanes, lane_fl
         _place_lanes(model, width, lane_rotations, lane_translations, lane_centers, ties,
                      failures, bounds)
         if kept[0].shape[2]:  # states kept (the state last)
-            _keep_lanes(model, first, width, pairs, (centers, rotations, extents), diagonals,
+            _keep_lanes(model, first, width, pairs, (centers, rotations, extents),
                         lane_rotations, lane_centers, kept)
         _cull_lanes(count, lanes, width, pairs, centers, rotations, extents, aabbs, radii,
                     margins, settings[PAD], lane_centers, ties, listed, listed_counts)
@@ -439,18 +438,16 @@ def _bad_center(count, lane_centers, w):
 
 
 @inlined_kernel
-def _keep_lanes(model, first, width, pairs, boxes, diagonals, lane_rotations, lane_centers,
-                kept):
-    """Write the lanes' robot boxes and pairs' gaps to ``kept`` (check_robot_states').
+def _keep_lanes(model, first, width, pairs, boxes, lane_rotations, lane_centers, kept):
+    """Write the lanes' robot boxes and pairs' separations to ``kept`` (check_robot_states').
 
-    States ``first`` on, the state last in each kept array, so that a lane's loop writes a
-    vector: each box's centre, its rotation straight from its link's (robot.box_rotation, not
-    through the quaternion a pose holds), and each listed pair's gap: robot_bodies.sphere_gap
-    for two robot boxes, robot_bodies.sphere_box_gap against a static one (``boxes`` the
-    rows' centers, rotations and extents, ``diagonals`` their half diagonals).
+    States ``first`` on, the state last in each kept array: each box's centre, its rotation
+    straight from its link's (robot.box_rotation, not through the quaternion a pose holds),
+    and each listed pair's robot_bodies.separation (``boxes`` the rows' centers, rotations
+    and extents), the same numbers that function gives from the placed boxes.
     """
     centers, rotations, extents = boxes
-    kept_centers, kept_rotations, kept_gaps = kept
+    kept_centers, kept_rotations, kept_separations = kept
     count = model.box_links.shape[0]
     for b in range(count):
         link, own = model.box_links[b], matrix(model.box_rotations, b)
@@ -465,18 +462,16 @@ def _keep_lanes(model, first, width, pairs, boxes, diagonals, lane_rotations, la
                 kept_centers[b, i, first + w] = lane_centers[b, i, w]
     for p in range(pairs.shape[0]):
         a, b = pairs[p, 0], pairs[p, 1]
-        radius_a, radius_b = diagonals[a], diagonals[b]
         if b < count:
             for w in range(width):
-                kept_gaps[p, first + w] = sphere_gap(
-                    lane_vector(lane_centers, a, w), lane_vector(lane_centers, b, w), radius_a,
-                    radius_b)
+                d = _lane_gap(lane_centers, a, w, lane_centers[b, 0, w], lane_centers[b, 1, w],
+                              lane_centers[b, 2, w])
+                kept_separations[p, first + w] = dot(d, d)
         else:
-            other = (centers[b, 0], centers[b, 1], centers[b, 2])
             r, e = matrix(rotations, b), (extents[b, 0], extents[b, 1], extents[b, 2])
             for w in range(width):
-                kept_gaps[p, first + w] = sphere_box_gap(lane_vector(lane_centers, a, w),
-                                                         radius_a, other, r, e)
+                d = _lane_gap(lane_centers, a, w, centers[b, 0], centers[b, 1], centers[b, 2])
+                kept_separations[p, first + w] = squared_distance_outside(d, r, e)
 
 
 @kernel
@@ -503,7 +498,7 @@ def _workspace(model_ints, model_floats, base_pose, pairs, keys, settings, stati
     rows = count + n_static
     model_int_count, model_float_count = packed_sizes(model_ints)
     floats = np.zeros(model_float_count + ROWS + rows * ROW_FLOATS + most * 7
-                      + LANES * (2 + links * 16 + count * 3) + rows)
+                      + LANES * (2 + links * 16 + count * 3))
     ints = np.zeros(model_int_count + 2 + most * 5 + count + most * 3 + LANES * (most + 2),
                     np.int64)
     copy_into(floats[:model_float_count], model_floats)
@@ -531,9 +526,7 @@ def _workspace(model_ints, model_floats, base_pose, pairs, keys, settings, stati
                 rotations[row, m, n] = box[ROTATION + 3 * m + n]
         radii[row] = box[RADIUS]
         margins[row] = box[OWN_MARGIN]
-    diagonals = _views(floats, ints)[-1]
     for row in range(rows):
-        diagonals[row] = half_diagonal(extents, row)
         bounds[0] = max(bounds[0], radii[row] + margins[row] + extents[row, 0]
                         + extents[row, 1] + extents[row, 2])
         if row >= count:
@@ -551,8 +544,7 @@ def _views(floats, ints):
     (depth, normal, point) per candidate, the state each robot box was last oriented for and
     the candidates (their rows, their pair); then the lanes' scratch (check_robot_states):
     the half angles, the link frames (robot.lane_transforms), the box centres and rounding
-    allowances, the pairs each lane's culls pass and their count, and each lane's failure;
-    last, each row's half diagonal (the radius of its bounding sphere).
+    allowances, the pairs each lane's culls pass and their count, and each lane's failure.
     """
     at_int, at = packed_sizes(ints)
     count, links = ints[1], ints[0]
@@ -594,7 +586,6 @@ def _views(floats, ints):
     lane_translations = view(floats, at, (links, 3, LANES))
     at += links * 3 * LANES
     lane_centers = view(floats, at, (count, 3, LANES))
-    diagonals = view(floats, at + count * 3 * LANES, (rows,))
     at_int += count + most * 3
     listed = view(ints, at_int, (LANES, most))
     at_int += LANES * most
@@ -603,7 +594,7 @@ def _views(floats, ints):
     return (base_pose, settings, bounds, pairs, keys, centers, rotations, extents, aabbs,
             radii, margins, depth, normal, point, oriented, candidates,
             (halves, lane_quaternions, lane_rotations, lane_translations, lane_centers, ties),
-            (listed, listed_counts, failures), diagonals)
+            (listed, listed_counts, failures))
 
 
 @inlined_kernel
