@@ -55,13 +55,15 @@ q0 and q1 within the limits: every q(s) is too (the limits are a box, which is c
 p of box b moves with dp/ds = sum_j (q1_j - q0_j) dp/dq_j, so |p(1) - p(0)| <= integral of
 |dp/ds| <= sum_j |q1_j - q0_j| max_s |dp/dq_j|. Joint k of the chain above b, driven by q_j
 with multiplier m_k, adds to dp/dq_j: m_k a_k x (p - o_k) when it turns (a_k its unit axis,
-o_k its frame's origin), m_k a_k when it slides. |a_k x (p - o_k)| <= |p - o_k|, and p - o_k
-is the sum, rotated, of the translations below joint k on the chain: each joint origin's
-|xyz| and each prismatic joint's largest |value| within its limits (its travel), then the
-box centre's offset in its link and the box's half diagonal. So motion_radii[b, j] = sum over
-the chain joints k driven by q_j of |m_k| (that reach if k turns, 1 if it slides); joints off
-the chain contribute 0. A continuous joint driving a prismatic mimic has an infinite travel,
-and so infinite radii above it. Two boxes of the robot, seen from their links' nearest common
+o_k its frame's origin), m_k a_k when it slides. |a_k x (p - o_k)| is p's distance from the
+axis, at most the smaller of two reaches (_axis_reaches): |p - o_k|, at most the sum of the
+translations below joint k on the chain (each joint origin's |xyz| and each prismatic joint's
+largest |value| within its limits, its travel, then the box centre's offset in its link and
+the box's half diagonal); and the distance from the axis of a ball that holds the box
+whatever the joints below do. So motion_radii[b, j] = sum over the chain joints k driven by
+q_j of |m_k| (that reach if k turns, 1 if it slides); joints off the chain contribute 0. A
+continuous joint driving a prismatic mimic has an infinite travel, and so infinite radii
+above it. Two boxes of the robot, seen from their links' nearest common
 ancestor, move only by the joints below it (the ones above move both as one, which changes no
 distance between them): their pair's radii sum each box's over those joints alone
 (Robot.pair_motion_radii), much less than the two boxes' motion_radii for neighbours far
@@ -72,10 +74,11 @@ b strays from the chord between its two ends by at most |p''| / 8 (for a piece o
 the segment: h² |p''| / 8, the interpolation error of a C² curve). p'' = sum over chain joints
 k, l of (m_k dq_k)(m_l dq_l) d²p/dθ_k dθ_l, and each such second derivative is at most the
 reach of the lower of the two joints (a turning joint below: its a × (p - o) turned by the
-upper one, at most |p - o|; a sliding one below: its turned axis, at most 1; a sliding one
-above: 0). So |p''| <= chord_reach[b] (sum_j |dq_j| chord_turns[b, j])², with chord_turns[b, j]
-the sum of |m_k| over the chain joints k driven by q_j and chord_reach[b] the largest reach of
-a turning joint of the chain (at least 1 when one slides). A robot that turns by 0.3 rad over
+upper one, at most p's distance from its axis; a sliding one below: its turned axis, at most
+1; a sliding one above: 0). So |p''| <= chord_reach[b] (sum_j |dq_j| chord_turns[b, j])²,
+with chord_turns[b, j] the sum of |m_k| over the chain joints k driven by q_j and
+chord_reach[b] the largest reach of a turning joint of the chain, as the Motion bound's
+(at least 1 when one slides). A robot that turns by 0.3 rad over
 a segment, 1 m from the axis, strays 1.1 cm from the chord, against 30 cm of motion: two boxes
 on one side of a fixed plane at both ends of a piece, farther than that, stay on it between
 (robot_bodies.first_uncleared_pieces).
@@ -501,11 +504,9 @@ def _chord_bound(model, travels):
     turns = np.zeros((len(model.box_links), len(model.joint_limits)))
     reach = np.zeros(len(model.box_links))
     for box in range(len(model.box_links)):
-        for link, walked in _walk_up(model, travels, box, NO_INDEX, _box_reach(model, box)):
-            kind = model.joint_types[link]
-            if kind != FIXED:
-                turns[box, model.q_indices[link]] += abs(model.multipliers[link])
-                reach[box] = max(reach[box], walked if kind == REVOLUTE else 1.0)
+        for link, from_axis in _axis_reaches(model, travels, box, NO_INDEX):
+            turns[box, model.q_indices[link]] += abs(model.multipliers[link])
+            reach[box] = max(reach[box], from_axis)
     return turns, reach
 
 
@@ -516,12 +517,37 @@ def _chain_radii(model, travels, box, above):
     the joints between them, the ones that move the box relative to that link.
     """
     radii = np.zeros(len(model.joint_limits))
-    for link, reach in _walk_up(model, travels, box, above, _box_reach(model, box)):
-        kind = model.joint_types[link]
-        if kind != FIXED:
-            weight = abs(model.multipliers[link])
-            radii[model.q_indices[link]] += weight * (reach if kind == REVOLUTE else 1.0)
+    for link, from_axis in _axis_reaches(model, travels, box, above):
+        radii[model.q_indices[link]] += abs(model.multipliers[link]) * from_axis
     return radii
+
+
+def _axis_reaches(model, travels, box, above):
+    """Yield (link, reach) for each moving joint from box ``box``'s link up to link ``above``.
+
+    A turning joint's ``reach`` bounds the distance from its axis to any point of the box,
+    whatever the joints between them do: the smaller of two bounds. The walk (_walk_up) bounds
+    the distance from the joint's origin. The ball: every point of the box lies in a ball,
+    first its half diagonal about its centre, in its link's frame. A turn about an axis
+    through the link's origin keeps the centre's part along the axis and sweeps the rest, at
+    its distance d from the axis, around it: the ball's centre moves onto the axis and its
+    radius grows by d, and before that the joint's reach is d plus the radius. A slide grows
+    the radius by its travel (and its reach is 1: its axis, moved by a unit of q); a joint's
+    origin carries the ball into the parent's frame. (The walk is the tighter one for a
+    centre far off an axis and near the next: the ball's centre then jumps onto the axis.)
+    """
+    centre, radius = model.box_translations[box], float(np.linalg.norm(model.half_extents[box]))
+    for link, walked in _walk_up(model, travels, box, above, _box_reach(model, box)):
+        kind = model.joint_types[link]
+        if kind == REVOLUTE:
+            along = (centre @ model.axes[link]) * model.axes[link]
+            off = float(np.linalg.norm(centre - along))
+            yield link, min(walked, off + radius)
+            centre, radius = along, radius + off
+        elif kind == PRISMATIC:
+            yield link, 1.0
+            radius += travels[link]
+        centre = model.origin_translations[link] + model.origin_rotations[link] @ centre
 
 
 def _box_reach(model, box):
