@@ -560,10 +560,11 @@ def _robot_model_markdown(rows, settings):
     lines += ['', 'The trajectory: a smooth path of {} waypoints (two sines per joint, the '
               'first of random paths whose {} states a segment are all free), '
               '`World.check_trajectory(waypoints)` (waypoints exactly, segments '
-              'conservatively) against `World.check_joints(waypoints)` alone, {} calls each '
-              'a round in the same rounds, the two taking turns call by call (the first '
-              'going first in alternate rounds). False alarms: on random short segments (each joint '
-              'moved by up to {:g} rad, a finger by up to {:g} m), the (segment, pair) '
+              'conservatively) against `World.check_joints(waypoints)` alone, {} calls '
+              'each a round in the same rounds, the two taking turns call by call (the '
+              'first going first in alternate rounds). False alarms: on random short '
+              'segments (each joint moved by up to {:g} rad, a finger by up to {:g} m), the '
+              '(segment, pair) '
               'reports of a two-waypoint `check_trajectory` that a referee checking {} states '
               'of the segment finds never colliding.'.format(
                   robot_model.TRAJECTORY_WAYPOINTS, robot_model.SAMPLES_PER_SEGMENT,

@@ -28,10 +28,11 @@ set of pairs is compared with our one-state answers (robot.compare).
 
 The trajectory check. A smooth 100-waypoint path, checked free at SAMPLES_PER_SEGMENT
 states a segment: ``World.check_trajectory(waypoints)`` against ``World.check_joints
-(waypoints)`` alone, in the same rounds, the two taking turns call by call (_time_path). And its false alarms: on random short segments
-(every joint moved by up to SHORT_SEGMENT_RAD, a finger by up to SHORT_SEGMENT_M), the
-(segment, pair) reports that a referee sampling REFEREE_SAMPLES states of the segment (its
-ends included) finds never colliding.
+(waypoints)`` alone, in the same rounds, the two taking turns call by call
+(_time_path). And its false alarms: on random short segments (every joint moved by up to
+SHORT_SEGMENT_RAD, a finger by up to SHORT_SEGMENT_M), the (segment, pair) reports that a
+referee sampling REFEREE_SAMPLES states of the segment (its ends included) finds never
+colliding.
 
 MuJoCo, pinocchio and coal are optional (the ``bench`` extra), and example-robot-data too
 (the ``test`` extra): one missing is reported as not installed and skipped.
@@ -495,8 +496,8 @@ def robot_model_rows(states_per_round, batch_states, rounds, segments, seed=0, p
 
     Each round: ``states_per_round`` new random states one call each, ``batch_states`` in
     one call, and TRAJECTORY_REPEATS calls of each trajectory check (_time_path); the
-    methods take turns in an order that rotates from round to round. Then ``segments`` random short segments
-    for the false alarms. Without example-robot-data, one row saying so.
+    methods take turns in an order that rotates from round to round. Then ``segments``
+    random short segments for the false alarms. Without example-robot-data, one row saying so.
     """
     try:
         _, urdf_path, _ = panda_files()
