@@ -456,7 +456,7 @@ def _write_robot_boxes(model, link_rotations, link_translations, boxes):
 
 @kernel
 def separation(boxes, a, b, robot_boxes):
-    """Return boxes a's and b's separation: their bounding spheres' gap, squared, in a sense.
+    """Return boxes a's and b's separation, the square of the distance their gap starts from.
 
     For two robot boxes, the squared distance between their centres; for a static box b (row
     ``robot_boxes`` or later), the squared distance from a's centre to the box itself: the
