@@ -662,6 +662,36 @@ def test_pair_motion_radii_bound_every_corner_relative_to_the_common_ancestor(
             assert (moved <= bound[:, p] * (1 + 1e-9) + 1e-12).all(), (name, a, b)
 
 
+def test_a_box_on_a_joint_axis_moves_by_its_own_size_only():
+    """A turn's reach is the distance from its axis, not from its origin (analytic).
+
+    A box 1 m up the axis of a turning joint: the turn keeps every point of the box within
+    its half diagonal of the axis, where the distance from the joint's origin says 1 m more.
+    With a second turn between them that can swing the box off that axis, the ball grows by
+    that turn's reach, and both bounds agree.
+    """
+    half = (0.1, 0.2, 0.05)
+    links = {'base': [], 'arm': [], 'tip': [((0.0, 0.0, 1.0), (0.0, 0.0, 0.0), 'box',
+                                            {'size': '%r %r %r' % tuple(2 * h for h in half)})]}
+    joints = [{'name': 'spin', 'type': 'revolute', 'parent': 'base', 'child': 'arm',
+               'xyz': (0.0, 0.0, 0.5), 'rpy': (0.0, 0.0, 0.0), 'axis': (0.0, 0.0, 1.0),
+               'limits': (-3.0, 3.0)},
+              {'name': 'tilt', 'type': 'revolute', 'parent': 'arm', 'child': 'tip',
+               'xyz': (0.0, 0.0, 0.0), 'rpy': (0.0, 0.0, 0.0), 'axis': (1.0, 0.0, 0.0),
+               'limits': (-0.5, 0.5)}]
+    robot = Robot.from_urdf(urdf_text(links, joints))
+    diagonal = np.linalg.norm(half)
+    # The tilt's axis passes 1 m from the box: its reach is that plus the half diagonal.
+    # The spin's axis runs through the box's centre at tilt 0, but the tilt can swing the
+    # box 1 m off it: the ball's radius (the tilt's sweep, 1 m, plus the half diagonal).
+    np.testing.assert_allclose(robot.model.motion_radii[0], [1.0 + diagonal, 1.0 + diagonal])
+    assert robot.chord_reach[0] == pytest.approx(1.0 + diagonal)
+    # Without the tilt, the spin alone moves the box's points by at most its half diagonal.
+    alone = Robot.from_urdf(urdf_text(
+        {'base': [], 'tip': links['tip']}, [dict(joints[0], child='tip')]))
+    np.testing.assert_allclose(alone.model.motion_radii[0], [diagonal])
+
+
 @pytest.mark.parametrize('name', ['own', *sorted(REFERENCE_ROBOTS)])
 def test_center_spheres_and_gaps_hold_at_any_joint_values(name, own, ament_prefix):
     """The reach reads no limits: it holds for angles far outside them too."""
