@@ -56,7 +56,8 @@ import numpy as np
 
 from collision_node.pipeline._jit import kernel
 from collision_node.pipeline.distance import box_distance
-from collision_node.pipeline.frames import dot, matrix, projection_gap, relative_pose, rotate
+from collision_node.pipeline.frames import (dot, matrix, projection_gap, relative_pose, rotate,
+                                            turned)
 from collision_node.pipeline.obb import AABB_RELATIVE_MARGIN, EPS, TIE_ULPS
 from collision_node.pipeline.sat import COLLIDING, SEPARATED, separating_axis_test
 
@@ -150,16 +151,6 @@ def _rodrigues(axis, angle):
             c * x * z - s * y, c * y * z + s * x, 1.0 - c * (x * x + y * y))
 
 
-@kernel
-def _times(p, q):
-    """Row-major 9-tuple product p·q."""
-    return (p[0] * q[0] + p[1] * q[3] + p[2] * q[6], p[0] * q[1] + p[1] * q[4] + p[2] * q[7],
-            p[0] * q[2] + p[1] * q[5] + p[2] * q[8], p[3] * q[0] + p[4] * q[3] + p[5] * q[6],
-            p[3] * q[1] + p[4] * q[4] + p[5] * q[7], p[3] * q[2] + p[4] * q[5] + p[5] * q[8],
-            p[6] * q[0] + p[7] * q[3] + p[8] * q[6], p[6] * q[1] + p[7] * q[4] + p[8] * q[7],
-            p[6] * q[2] + p[7] * q[5] + p[8] * q[8])
-
-
 # Speed notes: as in sat.py, the per-pair helpers take tuples, never arrays (numba counts the
 # references of every array handed to a call it does not inline: measured 2x slower). A box's
 # motion is read from the arrays once per pair, by :func:`_motion_of`, as
@@ -194,7 +185,7 @@ def _pose_at(motion, t):
               center0[2] + t * velocity[2])
     if spin[1] == 0.0 or t == 0.0:
         return center, rotation0
-    return center, _times(_rodrigues(spin[0], t * spin[1]), rotation0)
+    return center, turned(_rodrigues(spin[0], t * spin[1]), rotation0)
 
 
 def boxes_at(pairs, toi, n_static, boxes, start_centers, start_rotations, velocity, spin):

@@ -57,8 +57,9 @@ class RobotPath:
     def _check_states(self, rows, states, one_pass_pairs, start, kept=None):
         """Check ``states`` (K, dof), as Robot._states returns them, against ``rows``.
 
-        ``kept``: where the robot's pass keeps each state's robot boxes and pairs' gaps
-        (robot_pass.RobotRows.check); left unwritten when the scene is too large for it.
+        ``kept``: where the robot's pass keeps each state's robot boxes and pairs'
+        separations (robot_pass.RobotRows.check); left unwritten when the scene is too large
+        for it.
         """
         if rows.all_pairs > one_pass_pairs:
             return self._batches.check(rows.bodies.poses(states), rows.bodies.robot.half_extents,
@@ -103,7 +104,7 @@ class RobotPath:
         bodies = self._robot_bodies()
         waypoints = bodies.robot._states(waypoints)
         rows = self._robot_rows(bodies)
-        # The waypoints' robot boxes and pairs' gaps, kept by their exact check for the
+        # The waypoints' robot boxes and pairs' separations, kept by their exact check for the
         # segments' ends: their forward kinematics runs once. Not kept (left empty) beyond the
         # robot's pass.
         boxes = bodies.count
